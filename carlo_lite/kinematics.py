@@ -1,0 +1,107 @@
+"""Kinematic bicycle model, stepped for all cars at once (structure of arrays, no loop over cars).
+
+Model (rear-axle reference, applied at the car's centre, which is also the centre of its body
+rectangle):
+
+    x' = v cos(psi),   y' = v sin(psi),   psi' = v tan(delta) / wheelbase,   v' = a
+
+With steering delta and acceleration a held constant over a step, the path is an arc of constant
+curvature kappa = tan(delta) / wheelbase whatever the speed profile, so the step is integrated
+exactly: the arc length follows from the (clipped) speed profile and the pose from the arc.
+A constant steering angle therefore traces a circle of radius wheelbase / tan(delta).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CarLimits:
+    """Control and speed limits shared by all cars; controls outside them are clipped."""
+
+    max_steer_rad: float = 0.5  # |steering angle| [rad] (about 29 degrees)
+    max_accel_mps2: float = 4.0  # strongest forward acceleration [m/s^2]
+    max_decel_mps2: float = 8.0  # strongest braking [m/s^2] (about 0.8 g)
+    max_speed_mps: float = 40.0  # speed is kept in [0, max_speed_mps] [m/s]
+
+    def clip_controls(self, controls: np.ndarray) -> np.ndarray:
+        """Clip (N, 2) [steering rad, acceleration m/s^2] controls to the limits (new array)."""
+        clipped = np.empty_like(controls, dtype=float)
+        np.clip(controls[:, 0], -self.max_steer_rad, self.max_steer_rad, out=clipped[:, 0])
+        np.clip(controls[:, 1], -self.max_decel_mps2, self.max_accel_mps2, out=clipped[:, 1])
+        return clipped
+
+
+def arc_length(
+    speed: np.ndarray, accel: np.ndarray, dt: float, max_speed: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Distance travelled [m] and final speed [m/s] over `dt` under constant acceleration.
+
+    The speed is held in [0, max_speed]: a braking car stops and stays stopped, an accelerating
+    car cruises once it reaches `max_speed`.
+    """
+    # Time until the speed reaches a limit (0 or max_speed); dt when it does not within the step.
+    speeding_up = accel > 0
+    slowing_down = accel < 0
+    headroom = np.where(speeding_up, max_speed - speed, speed)  # speed change left before a limit
+    rate = np.abs(accel)
+    reaches_limit = (speeding_up | slowing_down) & (headroom < rate * dt)
+    ramp_time = np.full_like(speed, dt)
+    ramp_time[reaches_limit] = headroom[reaches_limit] / rate[reaches_limit]
+    final_speed = np.clip(speed + accel * dt, 0.0, max_speed)
+    distance = speed * ramp_time + 0.5 * accel * ramp_time**2 + final_speed * (dt - ramp_time)
+    return distance, final_speed
+
+
+def wrap_angle(angle: np.ndarray) -> np.ndarray:
+    """Wrap angles [rad] to [-pi, pi)."""
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def bicycle_step(
+    xy: np.ndarray,
+    heading: np.ndarray,
+    speed: np.ndarray,
+    controls: np.ndarray,
+    wheelbase: np.ndarray,
+    dt: float,
+    max_speed: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Advance all cars one step; returns new (xy (N, 2), heading (N,), speed (N,)).
+
+    `controls` (N, 2) must already be finite and clipped; integration is exact (see module doc).
+    """
+    distance, new_speed = arc_length(speed, controls[:, 1], dt, max_speed)
+    curvature = np.tan(controls[:, 0]) / wheelbase  # (N,) [1/m]
+    turn = curvature * distance  # (N,) heading change [rad]
+    # Chord of the arc: length distance * sin(turn/2)/(turn/2), direction heading + turn/2.
+    chord = distance * np.sinc(turn / (2.0 * np.pi))
+    mid_heading = heading + 0.5 * turn
+    new_xy = np.empty_like(xy)
+    new_xy[:, 0] = xy[:, 0] + chord * np.cos(mid_heading)
+    new_xy[:, 1] = xy[:, 1] + chord * np.sin(mid_heading)
+    return new_xy, wrap_angle(heading + turn), new_speed
+
+
+def box_corners(
+    xy: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray
+) -> np.ndarray:
+    """Corners (N, 4, 2) of rectangles centred at `xy`, counter-clockwise from front-left."""
+    cos, sin = np.cos(heading), np.sin(heading)
+    half_l, half_w = 0.5 * length, 0.5 * width
+    local = np.stack(
+        [
+            np.stack([half_l, half_w], axis=-1),
+            np.stack([-half_l, half_w], axis=-1),
+            np.stack([-half_l, -half_w], axis=-1),
+            np.stack([half_l, -half_w], axis=-1),
+        ],
+        axis=1,
+    )  # (N, 4, 2)
+    corners = np.empty_like(local)
+    corners[..., 0] = xy[:, None, 0] + local[..., 0] * cos[:, None] - local[..., 1] * sin[:, None]
+    corners[..., 1] = xy[:, None, 1] + local[..., 0] * sin[:, None] + local[..., 1] * cos[:, None]
+    return corners
