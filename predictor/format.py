@@ -1,0 +1,494 @@
+"""Trajectory dataset format, schema v1: reader, writer and validation (h5py + numpy only).
+
+The written contract is docs/dataset_format.md. One HDF5 file holds one scenario, split into
+`train`, `val` and `test`; each split is a `TrajectorySet` of time-major arrays `(n, T, N, F)`.
+Everything that reads or writes trajectories goes through this module, so any data source that
+can fill a `TrajectorySet` can feed the predictor. Every read validates and raises `FormatError`
+with one line naming the file and the problem.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from predictor import __version__
+
+FORMAT_NAME = "smooth-attention-trajectories"
+SCHEMA_VERSION = 1
+SPLITS = ("train", "val", "test")
+STATE_NAMES = ("x", "y", "heading", "speed")
+ACTION_NAMES = ("steering", "acceleration")
+
+# Per-split datasets: name -> (dtype, shape with "n", "T", "N" placeholders).
+_FIELDS: dict[str, tuple[np.dtype, tuple[str | int, ...]]] = {
+    "states": (np.dtype(np.float32), ("n", "T", "N", len(STATE_NAMES))),
+    "actions": (np.dtype(np.float32), ("n", "T", "N", len(ACTION_NAMES))),
+    "valid": (np.dtype(np.bool_), ("n", "T", "N")),
+    "attention": (np.dtype(np.int16), ("n", "T", "N")),
+    "interaction": (np.dtype(np.bool_), ("n", "T")),
+    "case": (np.dtype(np.int8), ("n",)),
+    "seed": (np.dtype(np.int64), ("n",)),
+    "roles": (np.dtype(np.int8), ("n", "N")),
+}
+_ROOT_ATTRS = (
+    "format", "schema_version", "scenario", "dt", "num_observed", "num_predicted", "case_names",
+    "major_case", "role_names", "state_names", "action_names", "config", "package_version",
+)
+
+
+class FormatError(ValueError):
+    """A dataset file or array set does not follow the format; the message is one line."""
+
+
+def _fail(source: str, what: str) -> FormatError:
+    """Build a one-line FormatError naming the source (file or object) and the problem."""
+    where = f"{source}: " if source else ""
+    return FormatError(f"{where}{what}".replace("\n", " "))
+
+
+@dataclass(frozen=True)
+class DatasetMeta:
+    """File-level description shared by all splits (root attributes of the file)."""
+
+    scenario: str  # scenario name, e.g. "double_merge"
+    dt: float  # seconds between two recorded steps [s]
+    num_observed: int  # suggested number of observed (history) steps
+    num_predicted: int  # suggested number of predicted steps
+    case_names: tuple[str, ...]  # `case` arrays index into this
+    major_case: str  # the frequent case, one of case_names, or "" if not applicable
+    role_names: tuple[str, ...]  # `roles` arrays index into this
+    config: dict = field(default_factory=dict)  # configuration that produced the file (JSON)
+    package_version: str = __version__  # version of the package that wrote the file
+    schema_version: int = SCHEMA_VERSION
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "case_names", tuple(self.case_names))
+        object.__setattr__(self, "role_names", tuple(self.role_names))
+
+    @property
+    def num_steps(self) -> int:
+        """Recorded steps per trajectory, T = num_observed + num_predicted."""
+        return self.num_observed + self.num_predicted
+
+    def validate(self, source: str = "") -> None:
+        """Raise FormatError if a field is out of its documented range."""
+        if self.schema_version != SCHEMA_VERSION:
+            raise _fail(source, f"schema_version is {self.schema_version!r}, this reader "
+                                f"supports only {SCHEMA_VERSION}")
+        if not isinstance(self.scenario, str) or not self.scenario:
+            raise _fail(source, "scenario must be a non-empty string")
+        if not (isinstance(self.dt, (int, float, np.floating)) and math.isfinite(self.dt)
+                and self.dt > 0):
+            raise _fail(source, f"dt must be a positive finite number of seconds, got {self.dt!r}")
+        for name in ("num_observed", "num_predicted"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, np.integer)) or value < 0:
+                raise _fail(source, f"{name} must be a non-negative integer, got {value!r}")
+        for name in ("case_names", "role_names"):
+            names = getattr(self, name)
+            if not names or not all(isinstance(s, str) and s for s in names):
+                raise _fail(source, f"{name} must be a non-empty list of non-empty strings")
+            if len(set(names)) != len(names):
+                raise _fail(source, f"{name} has duplicates: {list(names)}")
+        if self.major_case and self.major_case not in self.case_names:
+            raise _fail(source, f"major_case {self.major_case!r} is not one of "
+                                f"{list(self.case_names)}")
+        try:
+            json.dumps(self.config, allow_nan=False)
+        except (TypeError, ValueError) as err:
+            raise _fail(source, f"config is not JSON-serialisable: {err}") from None
+
+
+@dataclass(frozen=True, eq=False)
+class TrajectorySet:
+    """One split: n trajectories of T steps with N agent slots (shapes as in the contract)."""
+
+    states: np.ndarray  # (n, T, N, 4) float32: x [m], y [m], heading [rad], speed [m/s]
+    actions: np.ndarray  # (n, T, N, 2) float32: steering [rad], acceleration [m/s^2]
+    valid: np.ndarray  # (n, T, N) bool: agent present
+    attention: np.ndarray  # (n, T, N) int16: index of the attended agent, -1 for none
+    interaction: np.ndarray  # (n, T) bool: inside the interaction period
+    case: np.ndarray  # (n,) int8: index into case_names
+    seed: np.ndarray  # (n,) int64: generating seed, -1 for foreign data
+    roles: np.ndarray  # (n, N) int8: index into role_names
+
+    @property
+    def n(self) -> int:
+        """Number of trajectories."""
+        return int(self.states.shape[0])
+
+    @property
+    def num_steps(self) -> int:
+        """Recorded steps per trajectory, T."""
+        return int(self.states.shape[1])
+
+    @property
+    def num_agents(self) -> int:
+        """Agent slots per trajectory, N."""
+        return int(self.states.shape[2])
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The arrays by dataset name, in contract order."""
+        return {name: getattr(self, name) for name in _FIELDS}
+
+    def validate(self, meta: DatasetMeta | None = None, source: str = "") -> None:
+        """Raise FormatError unless dtypes, shapes and values follow the contract.
+
+        With `meta`, also checks T against num_observed + num_predicted and the case and role
+        indices against the names.
+        """
+        self._check_shapes(source)
+        n, steps, agents = self.n, self.num_steps, self.num_agents
+        if meta is not None and steps != meta.num_steps:
+            raise _fail(source, f"T={steps} but num_observed + num_predicted = "
+                                f"{meta.num_observed} + {meta.num_predicted} = {meta.num_steps}")
+        if n == 0:
+            return
+        if not np.isfinite(self.states[self.valid]).all():
+            raise _fail(source, "states are not finite where valid")
+        bad = (self.attention < -1) | (self.attention >= agents)
+        if bad.any():
+            raise _fail(source, f"attention labels must be -1 or an agent index in [0, {agents}), "
+                                f"found {int(self.attention[bad][0])}")
+        limits = {"case": None if meta is None else len(meta.case_names),
+                  "roles": None if meta is None else len(meta.role_names)}
+        for name, limit in limits.items():
+            values = getattr(self, name)
+            if values.size and values.min() < 0:
+                raise _fail(source, f"{name} has negative index {int(values.min())}")
+            if limit is not None and values.size and values.max() >= limit:
+                raise _fail(source, f"{name} index {int(values.max())} out of range for "
+                                    f"{limit} names")
+
+    def _check_shapes(self, source: str) -> None:
+        sizes: dict[str, int] = {}
+        for name, (dtype, shape) in _FIELDS.items():
+            array = getattr(self, name)
+            if not isinstance(array, np.ndarray):
+                raise _fail(source, f"{name} must be a numpy array, got {type(array).__name__}")
+            if array.dtype != dtype:
+                raise _fail(source, f"{name} has dtype {array.dtype}, expected {dtype}")
+            if array.ndim != len(shape):
+                raise _fail(source, f"{name} has shape {array.shape}, expected "
+                                    f"{len(shape)} dimensions {_shape_text(shape)}")
+            for size, expected in zip(array.shape, shape, strict=True):
+                if isinstance(expected, int):
+                    if size != expected:
+                        raise _fail(source, f"{name} has shape {array.shape}, "
+                                            f"expected {_shape_text(shape)}")
+                elif sizes.setdefault(expected, size) != size:
+                    raise _fail(source, f"{name} has shape {array.shape}, inconsistent with "
+                                        f"{expected}={sizes[expected]} of states")
+
+    def subset(self, indices: np.ndarray | Sequence[int] | slice) -> TrajectorySet:
+        """Trajectories picked by integer indices, a boolean mask or a slice (copies)."""
+        if not isinstance(indices, slice):
+            indices = np.asarray(indices)
+            if indices.dtype != np.bool_:
+                indices = indices.astype(np.int64).reshape(-1)
+        return TrajectorySet(**{k: np.array(v[indices]) for k, v in self.arrays().items()})
+
+    def select_case(self, case_index: int) -> TrajectorySet:
+        """Only the trajectories of one case (index into case_names)."""
+        return self.subset(self.case == case_index)
+
+    @staticmethod
+    def concatenate(sets: Sequence[TrajectorySet]) -> TrajectorySet:
+        """Join sets along the trajectory axis; a smaller agent axis is padded.
+
+        Padded agent slots are invalid at every step, zero-filled, attend to nobody (-1) and have
+        role 0 (meaningless, since they never appear).
+        """
+        if not sets:
+            raise ValueError("concatenate needs at least one TrajectorySet")
+        steps = {s.num_steps for s in sets}
+        if len(steps) != 1:
+            raise FormatError(f"cannot concatenate sets with different T: {sorted(steps)}")
+        agents = max(s.num_agents for s in sets)
+        padded = [s._pad_agents(agents).arrays() for s in sets]
+        return TrajectorySet(**{k: np.concatenate([p[k] for p in padded]) for k in _FIELDS})
+
+    def _pad_agents(self, num_agents: int) -> TrajectorySet:
+        extra = num_agents - self.num_agents
+        if extra == 0:
+            return self
+        fill = {"attention": -1}
+        out = {}
+        for name, array in self.arrays().items():
+            axis = {"states": 2, "actions": 2, "valid": 2, "attention": 2, "roles": 1}.get(name)
+            if axis is None:
+                out[name] = array
+                continue
+            widths = [(0, 0)] * array.ndim
+            widths[axis] = (0, extra)
+            out[name] = np.pad(array, widths, constant_values=fill.get(name, 0))
+        return TrajectorySet(**out)
+
+    @staticmethod
+    def empty(num_steps: int, num_agents: int) -> TrajectorySet:
+        """A set of zero trajectories with the given T and N."""
+        sizes = {"n": 0, "T": num_steps, "N": num_agents}
+        return TrajectorySet(**{
+            name: np.zeros(tuple(sizes.get(s, s) for s in shape), dtype=dtype)
+            for name, (dtype, shape) in _FIELDS.items()
+        })
+
+
+def _shape_text(shape: tuple[str | int, ...]) -> str:
+    return "(" + ", ".join(str(s) for s in shape) + ")"
+
+
+# ----------------------------------------------------------------------------------------------
+# Writing
+
+
+def write_dataset(
+    path: str | os.PathLike,
+    meta: DatasetMeta,
+    splits: Mapping[str, TrajectorySet],
+    *,
+    overwrite: bool = False,
+) -> Path:
+    """Validate `meta` and `splits`, then write them atomically to `path`; returns the path.
+
+    A split left out of `splits` is written empty (same N as the first given split). The file is
+    written beside the target under a temporary name and renamed at the end, so an interrupted
+    write (any exception, KeyboardInterrupt included) leaves nothing at `path`.
+    Raises FileExistsError if `path` exists and `overwrite` is False.
+    """
+    target = Path(path)
+    meta.validate(source="metadata")
+    unknown = sorted(set(splits) - set(SPLITS))
+    if unknown:
+        raise FormatError(f"unknown split names {unknown}; expected a subset of {list(SPLITS)}")
+    if not splits:
+        raise FormatError(f"no splits given; expected some of {list(SPLITS)}")
+    agents = next(iter(splits.values())).num_agents
+    full = {s: splits.get(s, TrajectorySet.empty(meta.num_steps, agents)) for s in SPLITS}
+    for name, data in full.items():
+        data.validate(meta, source=f"split {name!r}")
+    if target.exists() and not overwrite:
+        raise FileExistsError(f"{target} already exists; pass overwrite=True to replace it")
+    if not target.parent.is_dir():
+        raise FileNotFoundError(f"output directory {target.parent} does not exist")
+    handle, temp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp",
+                                         dir=target.parent)
+    os.close(handle)
+    try:
+        with h5py.File(temp_name, "w") as file:
+            _write_root_attrs(file, meta)
+            for name, data in full.items():
+                _write_split(file.create_group(name), data)
+        os.replace(temp_name, target)
+    except BaseException:
+        Path(temp_name).unlink(missing_ok=True)
+        raise
+    return target
+
+
+def _write_root_attrs(file: h5py.File, meta: DatasetMeta) -> None:
+    attrs = file.attrs
+    attrs["format"] = FORMAT_NAME
+    attrs["schema_version"] = np.int64(meta.schema_version)
+    attrs["scenario"] = meta.scenario
+    attrs["dt"] = np.float64(meta.dt)
+    attrs["num_observed"] = np.int64(meta.num_observed)
+    attrs["num_predicted"] = np.int64(meta.num_predicted)
+    attrs["case_names"] = json.dumps(list(meta.case_names))
+    attrs["major_case"] = meta.major_case
+    attrs["role_names"] = json.dumps(list(meta.role_names))
+    attrs["state_names"] = json.dumps(list(STATE_NAMES))
+    attrs["action_names"] = json.dumps(list(ACTION_NAMES))
+    attrs["config"] = json.dumps(meta.config, sort_keys=True, allow_nan=False)
+    attrs["package_version"] = meta.package_version
+
+
+def _write_split(group: h5py.Group, data: TrajectorySet) -> None:
+    group.attrs["count"] = np.int64(data.n)
+    for name, array in data.arrays().items():
+        if data.n > 0:  # one trajectory per chunk, gzip
+            group.create_dataset(name, data=array, chunks=(1, *array.shape[1:]),
+                                 compression="gzip", compression_opts=4, shuffle=True)
+        else:
+            group.create_dataset(name, data=array)
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading
+
+
+class _Reader:
+    """An open, format-checked file; converts h5py/OS errors into one-line FormatErrors."""
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        self.source = str(self.path)
+        if not self.path.is_file():
+            raise _fail(self.source, "no such file")
+        try:
+            is_hdf5 = h5py.is_hdf5(self.path)
+        except OSError as err:
+            raise _fail(self.source, f"cannot read file: {err}") from None
+        if not is_hdf5:
+            raise _fail(self.source, "not an HDF5 file")
+        try:
+            self.file = h5py.File(self.path, "r")
+        except OSError as err:
+            raise _fail(self.source, f"corrupt or truncated HDF5 file ({_short(err)})") from None
+
+    def __enter__(self) -> _Reader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.file.close()
+
+    def meta(self) -> DatasetMeta:
+        attrs = self._root_attrs()
+        meta = DatasetMeta(
+            scenario=self._text(attrs, "scenario"),
+            dt=self._number(attrs, "dt", float),
+            num_observed=self._number(attrs, "num_observed", int),
+            num_predicted=self._number(attrs, "num_predicted", int),
+            case_names=tuple(self._json(attrs, "case_names", list)),
+            major_case=self._text(attrs, "major_case"),
+            role_names=tuple(self._json(attrs, "role_names", list)),
+            config=self._json(attrs, "config", dict),
+            package_version=self._text(attrs, "package_version"),
+            schema_version=self._number(attrs, "schema_version", int),
+        )
+        for name, expected in (("state_names", STATE_NAMES), ("action_names", ACTION_NAMES)):
+            if tuple(self._json(attrs, name, list)) != expected:
+                raise _fail(self.source, f"{name} must be {list(expected)}")
+        meta.validate(self.source)
+        return meta
+
+    def _root_attrs(self) -> dict:
+        try:
+            attrs = dict(self.file.attrs)
+        except OSError as err:
+            raise _fail(self.source, f"corrupt HDF5 file ({_short(err)})") from None
+        if "format" not in attrs:
+            raise _fail(self.source, f"not a {FORMAT_NAME} file (no 'format' attribute)")
+        if self._text(attrs, "format") != FORMAT_NAME:
+            raise _fail(self.source, f"format is {attrs['format']!r}, expected {FORMAT_NAME!r}")
+        if "schema_version" not in attrs:
+            raise _fail(self.source, "missing root attribute 'schema_version'")
+        version = self._number(attrs, "schema_version", int)
+        if version != SCHEMA_VERSION:
+            raise _fail(self.source, f"schema_version {version} is not supported "
+                                     f"(this reader supports {SCHEMA_VERSION})")
+        missing = [name for name in _ROOT_ATTRS if name not in attrs]
+        if missing:
+            raise _fail(self.source, f"missing root attribute(s) {missing}")
+        return attrs
+
+    def split(self, name: str, meta: DatasetMeta) -> TrajectorySet:
+        if name not in SPLITS:
+            raise _fail(self.source, f"unknown split {name!r}; expected one of {list(SPLITS)}")
+        where = f"{self.source}: split {name!r}"
+        arrays = {}
+        try:
+            group = self.file.get(name)
+            if not isinstance(group, h5py.Group):
+                raise _fail(self.source, f"missing group {name!r}")
+            for field_name, (dtype, _shape) in _FIELDS.items():
+                dataset = group.get(field_name)
+                if not isinstance(dataset, h5py.Dataset):
+                    raise _fail(where, f"missing dataset {field_name!r}")
+                if dataset.dtype != dtype:  # check before loading: no silent casts
+                    raise _fail(where, f"{field_name} has dtype {dataset.dtype}, expected {dtype}")
+                arrays[field_name] = dataset[()]
+            count = group.attrs.get("count")
+        except OSError as err:
+            raise _fail(where, f"corrupt or truncated data ({_short(err)})") from None
+        data = TrajectorySet(**arrays)
+        data.validate(meta, source=where)
+        if not isinstance(count, (int, np.integer)) or int(count) != data.n:
+            shown = count.item() if isinstance(count, np.generic) else count
+            raise _fail(where, f"attribute count={shown!r} does not match {data.n} trajectories")
+        return data
+
+    def _text(self, attrs: dict, name: str) -> str:
+        value = attrs[name]
+        if isinstance(value, bytes):
+            value = value.decode("utf-8", errors="replace")
+        if not isinstance(value, str):
+            raise _fail(self.source, f"attribute {name!r} must be a string, got {value!r}")
+        return value
+
+    def _number(self, attrs: dict, name: str, kind: type) -> int | float:
+        value = attrs[name]
+        if np.ndim(value) != 0 or isinstance(value, (str, bytes, bool, np.bool_)):
+            raise _fail(self.source, f"attribute {name!r} must be a number, got {value!r}")
+        if kind is int and not isinstance(value, (int, np.integer)):
+            raise _fail(self.source, f"attribute {name!r} must be an integer, got {value!r}")
+        return kind(value)
+
+    def _json(self, attrs: dict, name: str, kind: type) -> list | dict:
+        try:
+            value = json.loads(self._text(attrs, name))
+        except json.JSONDecodeError:
+            raise _fail(self.source, f"attribute {name!r} is not valid JSON") from None
+        if not isinstance(value, kind):
+            raise _fail(self.source, f"attribute {name!r} must be a JSON {kind.__name__}")
+        return value
+
+
+def _short(err: BaseException) -> str:
+    return str(err).splitlines()[0] if str(err) else type(err).__name__
+
+
+def read_meta(path: str | os.PathLike) -> DatasetMeta:
+    """The file's metadata (root attributes), validated."""
+    with _Reader(path) as reader:
+        return reader.meta()
+
+
+def read_split(path: str | os.PathLike, split: str) -> TrajectorySet:
+    """One split of the file, validated against the file's metadata."""
+    with _Reader(path) as reader:
+        return reader.split(split, reader.meta())
+
+
+def read_dataset(path: str | os.PathLike) -> tuple[DatasetMeta, dict[str, TrajectorySet]]:
+    """Metadata and all three splits, validated."""
+    with _Reader(path) as reader:
+        meta = reader.meta()
+        return meta, {name: reader.split(name, meta) for name in SPLITS}
+
+
+def summarize(path: str | os.PathLike) -> str:
+    """Human-readable multi-line summary of a valid file (reads and validates all of it)."""
+    meta, splits = read_dataset(path)
+    size_mb = Path(path).stat().st_size / 1e6
+    steps = meta.num_steps
+    agents = sorted({s.num_agents for s in splits.values()})
+    cases = list(meta.case_names)
+    lines = [
+        f"file:      {path} ({size_mb:.2f} MB)",
+        f"format:    {FORMAT_NAME} schema v{meta.schema_version}, "
+        f"written by package {meta.package_version}",
+        f"scenario:  {meta.scenario}",
+        f"steps:     T={steps} (observed {meta.num_observed} + predicted {meta.num_predicted}), "
+        f"dt={meta.dt:g} s, {steps * meta.dt:g} s per trajectory",
+        f"agents:    N={'/'.join(str(a) for a in agents)} slots; "
+        f"roles: {', '.join(meta.role_names)}",
+        f"cases:     {', '.join(cases)}" + (f" (major: {meta.major_case})" if meta.major_case
+                                             else ""),
+        "",
+        "split   " + "".join(f"{c:>10}" for c in [*cases, "total"]) + "   valid agents/step",
+    ]
+    for name, data in splits.items():
+        counts = [int((data.case == i).sum()) for i in range(len(cases))] + [data.n]
+        mean_valid = f"{data.valid.sum(axis=2).mean():.2f}" if data.n else "-"
+        lines.append(f"{name:<8}" + "".join(f"{c:>10}" for c in counts) + f"   {mean_valid:>18}")
+    return "\n".join(lines)

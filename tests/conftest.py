@@ -1,0 +1,172 @@
+"""Shared test fixtures: small random-but-valid trajectory sets, dataset files, prediction files.
+
+Plain functions (`make_meta`, `make_trajectory_set`, `write_predictions_npz`) build the data; the
+fixtures `make_dataset_file` and `dataset_file` wrap them for use with `tmp_path`. Everything is
+seeded, so a test sees the same arrays every run.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+if str(REPO_ROOT) not in sys.path:  # make the packages importable without installation
+    sys.path.insert(0, str(REPO_ROOT))
+
+from predictor.format import (  # noqa: E402
+    SPLITS,
+    DatasetMeta,
+    TrajectorySet,
+    write_dataset,
+)
+
+CASE_NAMES = ("major", "minor")
+ROLE_NAMES = ("main_green", "main_brown", "distractor")
+
+
+def make_meta(num_observed: int = 4, num_predicted: int = 6, dt: float = 0.1) -> DatasetMeta:
+    """Metadata of a small two-case, three-role dataset."""
+    return DatasetMeta(
+        scenario="unit_test",
+        dt=dt,
+        num_observed=num_observed,
+        num_predicted=num_predicted,
+        case_names=CASE_NAMES,
+        major_case="major",
+        role_names=ROLE_NAMES,
+        config={"generator": {"seed": 7, "note": "made by tests/conftest.py"}, "lanes": [1, 2]},
+    )
+
+
+def make_trajectory_set(
+    n: int, num_steps: int = 10, num_agents: int = 4, seed: int = 0
+) -> TrajectorySet:
+    """n valid random trajectories: two main agents first, then distractors.
+
+    Agents move forward along x in lanes 3.5 m apart; some distractors are absent at some steps
+    (zero-filled and invalid); the main agents attend to each other inside a random interaction
+    window; cases alternate 0, 1, 0, ...
+    """
+    rng = np.random.default_rng(seed)
+    shape = (n, num_steps, num_agents)
+    time = np.arange(num_steps) * 0.1  # (T,) [s]
+    speed = rng.uniform(5.0, 15.0, size=(n, 1, num_agents))  # (n, 1, N) [m/s]
+    states = np.zeros((*shape, 4), dtype=np.float32)
+    states[..., 0] = rng.uniform(0, 20, size=(n, 1, num_agents)) + speed * time[:, None]
+    states[..., 1] = 3.5 * (np.arange(num_agents) % 4)  # lane centre [m]
+    states[..., 2] = rng.normal(0.0, 0.05, size=shape)
+    states[..., 3] = speed
+    valid = np.ones(shape, dtype=bool)
+    valid[:, :, 2:] = rng.random((n, num_steps, max(num_agents - 2, 0))) > 0.2
+    states[~valid] = 0.0
+    actions = rng.normal(0.0, 0.3, size=(*shape, 2)).astype(np.float32)
+    actions[~valid] = 0.0
+    start = rng.integers(0, num_steps, size=n)
+    interaction = (np.arange(num_steps)[None, :] >= start[:, None]) & (
+        np.arange(num_steps)[None, :] < start[:, None] + num_steps // 2
+    )
+    attention = np.full(shape, -1, dtype=np.int16)
+    if num_agents >= 2:
+        attention[:, :, 0] = np.where(interaction, 1, -1)
+        attention[:, :, 1] = np.where(interaction, 0, -1)
+    roles = np.full((n, num_agents), 2, dtype=np.int8)
+    roles[:, :2] = [0, 1][:num_agents]
+    return TrajectorySet(
+        states=states,
+        actions=actions,
+        valid=valid,
+        attention=attention,
+        interaction=interaction,
+        case=(np.arange(n) % 2).astype(np.int8),
+        seed=np.arange(seed * 1000, seed * 1000 + n, dtype=np.int64),
+        roles=roles,
+    )
+
+
+def assert_sets_equal(actual: TrajectorySet, expected: TrajectorySet) -> None:
+    """Every array equal, with the same dtype and shape."""
+    for name, want in expected.arrays().items():
+        got = getattr(actual, name)
+        assert got.dtype == want.dtype, name
+        assert got.shape == want.shape, name
+        np.testing.assert_array_equal(got, want, err_msg=name)
+
+
+def write_small_dataset(
+    path: Path, counts: tuple[int, int, int] = (6, 3, 4), num_agents: int = 4, **meta_kwargs
+) -> tuple[DatasetMeta, dict[str, TrajectorySet]]:
+    """Write a small valid dataset with `counts` trajectories in train/val/test."""
+    meta = make_meta(**meta_kwargs)
+    splits = {
+        name: make_trajectory_set(count, meta.num_steps, num_agents, seed=i + 1)
+        for i, (name, count) in enumerate(zip(SPLITS, counts, strict=True))
+    }
+    write_dataset(path, meta, splits)
+    return meta, splits
+
+
+@pytest.fixture
+def make_dataset_file(tmp_path: Path) -> Callable[..., Path]:
+    """Factory: `make_dataset_file(name="data.h5", counts=(6, 3, 4), num_agents=4)` -> path."""
+
+    def make(name: str = "data.h5", **kwargs) -> Path:
+        path = tmp_path / name
+        write_small_dataset(path, **kwargs)
+        return path
+
+    return make
+
+
+@pytest.fixture
+def dataset_file(make_dataset_file: Callable[..., Path]) -> Path:
+    """A small valid dataset file (train 6, val 3, test 4 trajectories; T=10, N=4)."""
+    return make_dataset_file()
+
+
+def write_predictions_npz(
+    path: Path, n: int = 3, num_observed: int = 4, num_predicted: int = 6, num_agents: int = 4,
+    with_attention: bool = True, seed: int = 0,
+) -> Path:
+    """A predictions file laid out as tools/evaluate.py writes it, from random data."""
+    rng = np.random.default_rng(seed)
+    data = make_trajectory_set(n, num_observed + num_predicted, num_agents, seed=seed)
+    steps = data.num_steps
+    true_xy = data.states[..., :2]  # (n, T, N, 2)
+    noise = rng.normal(0.0, 0.3, size=(n, num_predicted, num_agents, 2))
+    pred_mean = (true_xy[:, num_observed:] + noise).astype(np.float32)
+    if with_attention:
+        logits = rng.normal(size=(n, steps - 1, num_agents, num_agents))
+        attention = np.exp(logits) / np.exp(logits).sum(axis=-1, keepdims=True)
+    else:
+        attention = np.full((n, steps - 1, num_agents, num_agents), np.nan)
+    np.savez(
+        path,
+        pred_mean=pred_mean,
+        true_xy=true_xy.astype(np.float32),
+        valid=data.valid,
+        case=data.case.astype(np.int64),
+        case_names=np.array(CASE_NAMES),
+        role_names=np.array(ROLE_NAMES),
+        roles=data.roles.astype(np.int64),
+        attention=attention.astype(np.float32),
+        attention_label=data.attention,
+        interaction=data.interaction,
+        num_observed=np.int64(num_observed),
+        dt=np.float64(0.1),
+    )
+    return path
+
+
+def tool_env() -> dict[str, str]:
+    """Environment for running tools/*.py in a subprocess: repo importable, one thread."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO_ROOT), env.get("PYTHONPATH")]))
+    env["OMP_NUM_THREADS"] = "1"
+    env["MPLBACKEND"] = "Agg"
+    return env
