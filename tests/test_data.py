@@ -1,0 +1,100 @@
+"""Tests for predictor.data: dataset sizes, Batch layout, collation and deterministic loading."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from conftest import make_meta, make_trajectory_set
+
+from predictor.data import Batch, TrajectoryDataset, collate_batch, make_loader
+from predictor.format import FormatError, TrajectorySet, write_dataset
+
+torch.set_num_threads(1)
+
+
+def test_length_per_split_and_case(dataset_file: Path) -> None:
+    # counts (6, 3, 4), cases alternate major, minor, major, ...
+    expected = {"train": (6, 3, 3), "val": (3, 2, 1), "test": (4, 2, 2)}
+    for split, (total, major, minor) in expected.items():
+        assert len(TrajectoryDataset(dataset_file, split)) == total
+        assert len(TrajectoryDataset(dataset_file, split, case="major")) == major
+        minor_set = TrajectoryDataset(dataset_file, split, case="minor")
+        assert len(minor_set) == minor
+        assert (minor_set.all().case == 1).all()
+
+
+def test_unknown_case_lists_valid_names(dataset_file: Path) -> None:
+    with pytest.raises(FormatError, match="unknown case 'rare'; valid cases: major, minor"):
+        TrajectoryDataset(dataset_file, "train", case="rare")
+
+
+def test_empty_split_has_length_zero(make_dataset_file) -> None:
+    path = make_dataset_file(counts=(4, 0, 2))
+    dataset = TrajectoryDataset(path, "val")
+    assert len(dataset) == 0
+    assert list(make_loader(dataset, batch_size=2, shuffle=True, seed=0)) == []
+
+
+def test_item_is_one_scene_with_contract_dtypes(dataset_file: Path) -> None:
+    dataset = TrajectoryDataset(dataset_file, "train")
+    source = dataset.data
+    item = dataset[4]
+    assert isinstance(item, Batch)
+    assert (item.batch_size, item.num_steps, item.num_agents) == (1, 10, 4)
+    assert item.states.shape == (1, 10, 4, 4) and item.states.dtype == torch.float32
+    assert item.valid.shape == (1, 10, 4) and item.valid.dtype == torch.bool
+    assert item.attention.shape == (1, 10, 4) and item.attention.dtype == torch.int64
+    assert item.interaction.shape == (1, 10) and item.interaction.dtype == torch.bool
+    assert item.case.shape == (1,) and item.case.dtype == torch.int64
+    assert item.seed.dtype == torch.int64 and item.roles.shape == (1, 4)
+    np.testing.assert_array_equal(item.states[0].numpy(), source.states[4])
+    np.testing.assert_array_equal(item.attention[0].numpy(), source.attention[4])
+    assert item.seed.item() == source.seed[4]
+    assert torch.equal(item.positions, item.states[..., :2])
+    assert torch.equal(dataset[-1].seed, dataset[5].seed)
+    with pytest.raises(IndexError):
+        dataset[6]
+
+
+def test_absent_agents_have_zero_states(tmp_path: Path) -> None:
+    meta = make_meta()
+    data = make_trajectory_set(3, meta.num_steps)
+    states = data.states.copy()
+    states[~data.valid] = np.nan  # allowed by the format where invalid
+    data = TrajectorySet(**{**data.arrays(), "states": states})
+    path = write_dataset(tmp_path / "nan.h5", meta, {"train": data})
+    batch = TrajectoryDataset(path, "train").all()
+    assert torch.isfinite(batch.states).all()
+    assert (batch.states[~batch.valid] == 0).all()
+
+
+def test_collate_and_to(dataset_file: Path) -> None:
+    dataset = TrajectoryDataset(dataset_file, "train")
+    batch = collate_batch([dataset[2], dataset[0], dataset[5]])
+    assert (batch.batch_size, batch.num_steps, batch.num_agents) == (3, 10, 4)
+    assert batch.positions.shape == (3, 10, 4, 2)
+    np.testing.assert_array_equal(batch.seed.numpy(), dataset.data.seed[[2, 0, 5]])
+    moved = batch.to("cpu")
+    assert isinstance(moved, Batch) and moved.states.device.type == "cpu"
+    assert torch.equal(moved.states, batch.states) and torch.equal(moved.roles, batch.roles)
+
+
+def _seed_order(loader) -> list[int]:
+    return [int(s) for batch in loader for s in batch.seed]
+
+
+def test_loader_is_deterministic_per_seed(dataset_file: Path) -> None:
+    dataset = TrajectoryDataset(dataset_file, "train")
+    all_seeds = sorted(int(s) for s in dataset.data.seed)
+    first = _seed_order(make_loader(dataset, batch_size=4, shuffle=True, seed=3))
+    again = _seed_order(make_loader(dataset, batch_size=4, shuffle=True, seed=3))
+    assert first == again
+    assert sorted(first) == all_seeds  # every scene exactly once
+    orders = {tuple(_seed_order(make_loader(dataset, 4, True, seed))) for seed in range(4, 10)}
+    assert len(orders | {tuple(first)}) > 1  # other seeds shuffle differently
+    batches = list(make_loader(dataset, batch_size=4, shuffle=False, seed=0))
+    assert [b.batch_size for b in batches] == [4, 2]
+    assert _seed_order(batches) == [int(s) for s in dataset.data.seed]
