@@ -1,0 +1,88 @@
+"""Run every benchmark (benchmarks/bench_*.py) and collect their figures.
+
+Each benchmark prints one JSON line last; this writes them all to benchmarks/results.json and
+refreshes the table between the result markers in benchmarks/README.md.
+Usage: python benchmarks/run_all.py [--only simulator,env,...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+START, END = "<!-- results:start -->", "<!-- results:end -->"
+
+
+def run_benchmark(script: Path) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(HERE.parent), "OMP_NUM_THREADS": "1"}
+    result = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, env=env, cwd=HERE.parent
+    )
+    if result.returncode != 0:
+        return {
+            "benchmark": script.stem.removeprefix("bench_"),
+            "error": result.stderr.strip()[-500:],
+        }
+    print(result.stdout.strip().splitlines()[0], flush=True)
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def table(results: list[dict]) -> str:
+    lines = ["| benchmark | figure | value |", "|---|---|---|"]
+    for result in results:
+        for key, value in result.items():
+            if key == "benchmark" or isinstance(value, list | dict):
+                continue
+            shown = f"{value:,}" if isinstance(value, int) else str(value)
+            lines.append(f"| {result['benchmark']} | {key} | {shown} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description="run every benchmark")
+    parser.add_argument("--only", default="", help="comma-separated benchmark names (default all)")
+    args = parser.parse_args()
+    wanted = {name for name in args.only.split(",") if name}
+    scripts = [
+        p
+        for p in sorted(HERE.glob("bench_*.py"))
+        if not wanted or p.stem.removeprefix("bench_") in wanted
+    ]
+    results = [run_benchmark(script) for script in scripts]
+    record = {
+        "date": time.strftime("%Y-%m-%d"),
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
+        f"Python {platform.python_version()}",
+        "command": "make bench (python benchmarks/run_all.py)",
+        "results": results,
+    }
+    (HERE / "results.json").write_text(json.dumps(record, indent=2) + "\n")
+    readme = HERE / "README.md"
+    text = readme.read_text()
+    block = (
+        f"{START}\nLast `make bench`: {record['date']}, {record['machine']}.\n\n"
+        f"{table(results)}\n{END}"
+    )
+    if START in text and END in text:
+        text = text[: text.index(START)] + block + text[text.index(END) + len(END) :]
+    else:
+        text = text.rstrip() + "\n\n## Latest run\n\n" + block + "\n"
+    readme.write_text(text)
+    failed = [r["benchmark"] for r in results if "error" in r]
+    print(
+        f"benchmarks: {len(results) - len(failed)} ran, {len(failed)} failed"
+        + (f" ({', '.join(failed)})" if failed else "")
+        + "; wrote benchmarks/results.json"
+    )
+    raise SystemExit(1 if failed else 0)
+
+
+if __name__ == "__main__":
+    main()
