@@ -105,3 +105,18 @@ def test_dt_and_sizes_validated():
         World(road, np.zeros((2, 2)), np.zeros(2), np.zeros(2), length_m=[4.5, -1.0])
     with pytest.raises(ValueError):
         World(road, np.zeros((2, 2)), np.zeros(2), np.zeros(2), roles=["a"])
+
+
+def test_human_viewer_opens_and_closes_with_dummy_video_driver(monkeypatch):
+    pytest.importorskip("pygame")
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    from carlo_lite import HumanViewer
+
+    viewer = HumanViewer(fps=1000.0)
+    frame = render_rgb(small_world(), width_px=64, height_px=32)
+    viewer.show(frame)
+    import pygame
+
+    shown = pygame.surfarray.array3d(pygame.display.get_surface()).swapaxes(0, 1)
+    np.testing.assert_array_equal(shown, frame)
+    viewer.close()
