@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
+import secrets
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -280,11 +280,9 @@ def write_dataset(
         raise FileExistsError(f"{target} already exists; pass overwrite=True to replace it")
     if not target.parent.is_dir():
         raise FileNotFoundError(f"output directory {target.parent} does not exist")
-    handle, temp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp",
-                                         dir=target.parent)
-    os.close(handle)
+    temp_name = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
     try:
-        with h5py.File(temp_name, "w") as file:
+        with h5py.File(temp_name, "x") as file:  # "x": never clobber; permissions from umask
             _write_root_attrs(file, meta)
             for name, data in full.items():
                 _write_split(file.create_group(name), data)

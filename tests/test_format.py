@@ -357,3 +357,44 @@ def test_format_module_does_not_import_torch() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          env=tool_env(), check=True)
     assert out.stdout.strip() == "False"
+
+
+# ---------------------------------------------------------------------------------------------
+# tools/inspect_data.py
+
+
+def _inspect(*args: object) -> subprocess.CompletedProcess:
+    tool = Path(__file__).resolve().parents[1] / "tools" / "inspect_data.py"
+    return subprocess.run([sys.executable, str(tool), *map(str, args)], capture_output=True,
+                          text=True, env=tool_env(), timeout=120)
+
+
+def test_inspect_tool_accepts_valid_file(dataset_file: Path) -> None:
+    result = _inspect(dataset_file)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip().splitlines()[-1] == (
+        f"OK: {dataset_file} is a valid schema v1 dataset")
+    assert summarize(dataset_file) in result.stdout
+
+
+@pytest.mark.parametrize("damage", ["truncate", "foreign", "schema"])
+def test_inspect_tool_rejects_invalid_file_with_exit_1(dataset_file: Path, damage: str) -> None:
+    if damage == "truncate":
+        dataset_file.write_bytes(dataset_file.read_bytes()[:3000])
+    elif damage == "foreign":
+        _edit(dataset_file, lambda f: f.attrs.__delitem__("format"))
+    else:
+        _edit(dataset_file, lambda f: f.attrs.__setitem__("schema_version", 7))
+    result = _inspect(dataset_file)
+    assert result.returncode == 1
+    assert result.stdout == "" and "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {dataset_file}: ")
+
+
+def test_inspect_tool_usage_errors_exit_2(tmp_path: Path) -> None:
+    for args in ([tmp_path / "absent.h5"], [], ["a.h5", "b.h5"]):
+        result = _inspect(*args)
+        assert result.returncode == 2
+        assert "Traceback" not in result.stderr
+        assert len(result.stderr.strip().splitlines()) == 1

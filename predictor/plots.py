@@ -1,0 +1,285 @@
+"""Figures in the paper's style: trajectories as dots growing with time, attention over time.
+
+Figures are built on `matplotlib.figure.Figure` with the Agg canvas, never through pyplot, so no
+global figure state is created or leaked. Main cars are coloured by role ("main_green" green,
+"main_brown" brown, other main roles from a fixed palette), every other role grey.
+"""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+
+from predictor.format import DatasetMeta, TrajectorySet
+
+ROAD_COLOR = "#ececec"  # axes background: the road area
+TRUE_COLOR = "#8c8c8c"  # ground-truth lines
+DISTRACTOR_COLOR = "#a6a6a6"
+_NAMED_COLORS = {"green": "#2ca02c", "brown": "#8c564b", "blue": "#1f77b4", "red": "#d62728",
+                 "orange": "#ff7f0e", "purple": "#9467bd"}
+_PALETTE = ("#1f77b4", "#d62728", "#ff7f0e", "#9467bd", "#17becf")
+_MIN_DOT, _MAX_DOT = 3.0, 40.0  # scatter marker areas [pt^2] at the first and last step
+
+
+class PlotInputError(ValueError):
+    """Input for a plot is missing or inconsistent; the message is one line."""
+
+
+def role_color(name: str, index: int = 0) -> str:
+    """Colour of a role: a colour named in it ("main_green"), a palette colour for other main
+    roles (by `index`), grey for anything else (distractors)."""
+    for word, color in _NAMED_COLORS.items():
+        if word in name:
+            return color
+    if name.startswith("main"):
+        return _PALETTE[index % len(_PALETTE)]
+    return DISTRACTOR_COLOR
+
+
+def _is_main(name: str) -> bool:
+    return role_color(name) != DISTRACTOR_COLOR
+
+
+def _dot_sizes(steps: np.ndarray, num_steps: int) -> np.ndarray:
+    """Marker areas growing linearly with the time step."""
+    return _MIN_DOT + (_MAX_DOT - _MIN_DOT) * steps / max(num_steps - 1, 1)
+
+
+def _draw_dots(ax: Axes, xy: np.ndarray, mask: np.ndarray, steps: np.ndarray, roles: np.ndarray,
+               role_names: tuple[str, ...], num_steps: int) -> None:
+    """Scatter positions `xy` (T', N, 2) where `mask` (T', N); `steps` (T',) are the time steps.
+
+    One scatter call per role; distractors below main cars.
+    """
+    order = sorted(set(roles.tolist()), key=lambda r: _is_main(role_names[r]))
+    for role in order:
+        name = role_names[role]
+        select = mask & (roles == role)[None, :]  # (T', N)
+        step_index = np.broadcast_to(steps[:, None], select.shape)[select]
+        ax.scatter(xy[select][:, 0], xy[select][:, 1], s=_dot_sizes(step_index, num_steps),
+                   color=role_color(name, role), edgecolors="none",
+                   alpha=0.9 if _is_main(name) else 0.6, zorder=3 if _is_main(name) else 2)
+
+
+def _style_road_axes(ax: Axes, xlabel: bool = True, ylabel: bool = True) -> None:
+    ax.set_facecolor(ROAD_COLOR)
+    ax.set_aspect("equal", adjustable="datalim")
+    if xlabel:
+        ax.set_xlabel("x [m]")
+    if ylabel:
+        ax.set_ylabel("y [m]")
+
+
+def _role_legend(fig: Figure, role_names: tuple[str, ...]) -> None:
+    handles = [Line2D([], [], marker="o", linestyle="", color=role_color(name, i), label=name)
+               for i, name in enumerate(role_names)]
+    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles),
+               fontsize="small", frameon=False)
+
+
+def new_figure(width: float, height: float) -> Figure:
+    """A Figure with an Agg canvas attached (no pyplot)."""
+    fig = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def save_figure(fig: Figure, path: str | os.PathLike, dpi: int = 120) -> None:
+    """Write the figure; the format follows the file suffix (e.g. .png, .pdf, .svg)."""
+    fig.savefig(path, dpi=dpi)
+
+
+# ---------------------------------------------------------------------------------------------
+# Sample trajectories from a dataset
+
+
+def plot_samples(data: TrajectorySet, meta: DatasetMeta, num_per_case: int = 4) -> Figure:
+    """One column per case, the first `num_per_case` trajectories of that case as rows."""
+    if num_per_case < 1:
+        raise PlotInputError(f"num_per_case must be >= 1, got {num_per_case}")
+    if data.n == 0:
+        raise PlotInputError("the split has no trajectories to plot")
+    cases = list(meta.case_names)
+    rows = num_per_case
+    fig = new_figure(6.0 * len(cases), 1.7 * rows + 0.8)
+    axes = fig.subplots(rows, len(cases), squeeze=False)
+    steps = np.arange(data.num_steps)
+    for column, case_name in enumerate(cases):
+        picked = np.flatnonzero(data.case == column)[:rows]
+        for row in range(rows):
+            ax = axes[row, column]
+            if row >= len(picked):
+                ax.set_axis_off()
+                if row == 0:
+                    ax.set_title(f"{case_name}: no trajectories")
+                continue
+            i = picked[row]
+            _draw_dots(ax, data.states[i, :, :, :2], data.valid[i], steps, data.roles[i],
+                       meta.role_names, data.num_steps)
+            _style_road_axes(ax, xlabel=row == len(picked) - 1, ylabel=column == 0)
+            ax.set_title(f"{case_name}, seed {int(data.seed[i])}", fontsize="small")
+    fig.suptitle(f"{meta.scenario}: sample trajectories (dot size grows with time, "
+                 f"dt = {meta.dt:g} s)")
+    _role_legend(fig, meta.role_names)
+    return fig
+
+
+# ---------------------------------------------------------------------------------------------
+# Predictions file (written by tools/evaluate.py)
+
+
+@dataclass(frozen=True)
+class Predictions:
+    """Contents of a predictions .npz (n scenes, T steps, N agents, T_pred predicted steps)."""
+
+    pred_mean: np.ndarray  # (n, T_pred, N, 2) predicted mean positions [m]
+    true_xy: np.ndarray  # (n, T, N, 2) true positions [m]
+    valid: np.ndarray  # (n, T, N) bool
+    case: np.ndarray  # (n,) index into case_names
+    case_names: tuple[str, ...]
+    role_names: tuple[str, ...]
+    roles: np.ndarray  # (n, N) index into role_names
+    attention: np.ndarray  # (n, T-1, N, N) model attention theta[t, i, j]; NaN if none
+    attention_label: np.ndarray  # (n, T, N) ground-truth attended agent, -1 none
+    interaction: np.ndarray  # (n, T) bool
+    num_observed: int
+    dt: float  # [s]
+
+    @property
+    def n(self) -> int:
+        return int(self.true_xy.shape[0])
+
+
+_PRED_SHAPES = {  # key -> expected shape in terms of n, T, P (= T_pred), N
+    "pred_mean": ("n", "P", "N", 2), "true_xy": ("n", "T", "N", 2), "valid": ("n", "T", "N"),
+    "case": ("n",), "roles": ("n", "N"), "attention": ("n", "T-1", "N", "N"),
+    "attention_label": ("n", "T", "N"), "interaction": ("n", "T"),
+}
+
+
+def load_predictions(path: str | os.PathLike) -> Predictions:
+    """Read and check a predictions .npz; raises PlotInputError with one line on any problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise PlotInputError(f"{path}: no such file")
+    if not zipfile.is_zipfile(path):
+        raise PlotInputError(f"{path}: not an .npz file")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            arrays = {key: npz[key] for key in npz.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
+        raise PlotInputError(f"{path}: not a readable .npz file ({err})") from None
+    required = set(_PRED_SHAPES) | {"case_names", "role_names", "num_observed", "dt"}
+    missing = sorted(required - set(arrays))
+    if missing:
+        raise PlotInputError(f"{path}: missing arrays {missing}")
+    n, steps, agents = arrays["true_xy"].shape[:3] if arrays["true_xy"].ndim == 4 else (0, 0, 0)
+    sizes = {"n": n, "T": steps, "T-1": steps - 1, "N": agents,
+             "P": arrays["pred_mean"].shape[1] if arrays["pred_mean"].ndim == 4 else -1}
+    for key, shape in _PRED_SHAPES.items():
+        expected = tuple(sizes.get(s, s) for s in shape)
+        if arrays[key].shape != expected:
+            raise PlotInputError(f"{path}: {key} has shape {arrays[key].shape}, expected "
+                                 f"{expected}")
+    num_observed = int(arrays["num_observed"])
+    if num_observed < 1 or num_observed + sizes["P"] > steps:
+        raise PlotInputError(f"{path}: num_observed={num_observed} with {sizes['P']} predicted "
+                             f"steps does not fit T={steps}")
+    return Predictions(
+        **{key: arrays[key] for key in _PRED_SHAPES},
+        case_names=tuple(str(s) for s in arrays["case_names"]),
+        role_names=tuple(str(s) for s in arrays["role_names"]),
+        num_observed=num_observed,
+        dt=float(arrays["dt"]),
+    )
+
+
+def _check_index(pred: Predictions, index: int) -> None:
+    if not 0 <= index < pred.n:
+        raise PlotInputError(f"scene index {index} out of range: the file has {pred.n} scenes")
+
+
+def _case_name(pred: Predictions, index: int) -> str:
+    case = int(pred.case[index])
+    return pred.case_names[case] if 0 <= case < len(pred.case_names) else f"case {case}"
+
+
+def plot_predictions(pred: Predictions, index: int) -> Figure:
+    """True trajectories of scene `index` as grey lines, predicted means as dots sized by time."""
+    _check_index(pred, index)
+    true_xy = np.where(pred.valid[index][..., None], pred.true_xy[index], np.nan)  # (T, N, 2)
+    steps = true_xy.shape[0]
+    fig = new_figure(10.0, 3.6)
+    ax = fig.subplots()
+    ax.plot(true_xy[:, :, 0], true_xy[:, :, 1], color=TRUE_COLOR, linewidth=1.0, zorder=1)
+    ax.plot(true_xy[pred.num_observed - 1, :, 0], true_xy[pred.num_observed - 1, :, 1], "|",
+            color="black", markersize=8, zorder=4)
+    pred_steps = pred.num_observed + np.arange(pred.pred_mean.shape[1])  # (T_pred,)
+    mask = pred.valid[index][pred_steps] & np.isfinite(pred.pred_mean[index]).all(axis=-1)
+    _draw_dots(ax, pred.pred_mean[index], mask, pred_steps, pred.roles[index],
+               pred.role_names, steps)
+    _style_road_axes(ax)
+    ax.set_title(f"scene {index} ({_case_name(pred, index)}): predicted means (dots, size grows "
+                 f"with time) vs truth (grey lines); | = last observed step", fontsize="small")
+    _role_legend(fig, pred.role_names)
+    return fig
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) indices of each run of True values in a 1-D boolean array."""
+    padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def plot_attention(pred: Predictions, index: int, agent: int, target: int) -> Figure:
+    """Attention of `agent` on `target` over time in scene `index` (the paper's Fig. 6).
+
+    attention[t] is computed at step t (time t*dt) to predict step t+1; the vertical line marks
+    the last observed step, after which the model runs on its own predictions. The interaction
+    period is shaded; the dashed line is 1 where the ground-truth label says `agent` attends to
+    `target`.
+    """
+    _check_index(pred, index)
+    agents = pred.valid.shape[2]
+    for name, value in (("agent", agent), ("target", target)):
+        if not 0 <= value < agents:
+            raise PlotInputError(f"{name} {value} out of range: the scenes have {agents} agents")
+    if agent == target:
+        raise PlotInputError("agent and target must differ")
+    theta = pred.attention[index, :, agent, target]  # (T-1,)
+    if not np.isfinite(theta).any():
+        raise PlotInputError("the predictions file has no attention for this scene (NaN), e.g. "
+                             "from a model without attention such as const_vel")
+    time = np.arange(theta.shape[0]) * pred.dt  # (T-1,) [s]
+    roles = pred.roles[index]
+    fig = new_figure(8.0, 3.2)
+    ax = fig.subplots()
+    for k, (first, last) in enumerate(_runs(pred.interaction[index])):
+        ax.axvspan((first - 0.5) * pred.dt, (last + 0.5) * pred.dt, color="#f2d7a6", alpha=0.6,
+                   zorder=0, label="interaction period" if k == 0 else None)
+    label_on = (pred.attention_label[index, :-1, agent] == target).astype(float)  # (T-1,)
+    ax.step(time, label_on, where="mid", color="black", linestyle="--", linewidth=1.0,
+            label="ground truth", zorder=2)
+    target_role = pred.role_names[roles[target]]
+    ax.plot(time, theta, marker="o", markersize=3, color=role_color(target_role, roles[target]),
+            label=f"attention on agent {target} ({target_role})", zorder=3)
+    ax.axvline((pred.num_observed - 1) * pred.dt, color="black", linewidth=1.0,
+               label="last observed step")
+    ax.set_xlim(-0.5 * pred.dt, (theta.shape[0] - 0.5) * pred.dt)
+    ax.set_ylim(-0.05, 1.05)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("attention")
+    agent_role = pred.role_names[roles[agent]]
+    ax.set_title(f"scene {index} ({_case_name(pred, index)}): attention of agent {agent} "
+                 f"({agent_role}) on agent {target}", fontsize="small")
+    ax.legend(fontsize="small", loc="upper left")
+    return fig

@@ -1,0 +1,170 @@
+"""Tests for predictor.plots and tools/plot.py: figures built, files written, bad input refused."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import REPO_ROOT, make_meta, make_trajectory_set, tool_env, write_predictions_npz
+from matplotlib.colors import to_hex
+from matplotlib.image import imread
+
+from predictor.plots import (
+    DISTRACTOR_COLOR,
+    PlotInputError,
+    _runs,
+    load_predictions,
+    plot_attention,
+    plot_predictions,
+    plot_samples,
+    role_color,
+)
+
+PLOT_TOOL = REPO_ROOT / "tools" / "plot.py"
+
+
+def _run_plot(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(PLOT_TOOL), *map(str, args)], capture_output=True,
+                          text=True, env=tool_env(), timeout=120)
+
+
+def _assert_usage_error(result: subprocess.CompletedProcess, fragment: str) -> None:
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
+    assert fragment in lines[0]
+
+
+def _assert_png(path: Path) -> None:
+    image = imread(path)
+    assert image.ndim == 3 and image.shape[0] > 50 and image.shape[1] > 50
+    assert image.std() > 0  # not a blank canvas
+
+
+# ---------------------------------------------------------------------------------------------
+# Library
+
+
+def test_role_colors() -> None:
+    assert role_color("main_green") == "#2ca02c"
+    assert role_color("main_brown") == "#8c564b"
+    assert role_color("distractor") == DISTRACTOR_COLOR
+    assert role_color("main_leader", 0) != role_color("main_leader", 1)  # palette by index
+
+
+def test_runs_of_true_values() -> None:
+    mask = np.array([0, 1, 1, 0, 0, 1, 0, 1, 1, 1], dtype=bool)
+    assert _runs(mask) == [(1, 2), (5, 5), (7, 9)]
+    assert _runs(np.zeros(4, bool)) == []
+
+
+def test_samples_dots_grow_with_time() -> None:
+    meta = make_meta()
+    data = make_trajectory_set(5, meta.num_steps)
+    fig = plot_samples(data, meta, num_per_case=2)
+    axes = [ax for ax in fig.axes if ax.collections]
+    assert len(axes) == 4  # 2 cases x 2 scenes
+    green = [c for c in axes[0].collections if to_hex(c.get_facecolor()[0]) == "#2ca02c"]
+    assert len(green) == 1
+    sizes = green[0].get_sizes()  # agent 0 is valid at every step: sizes from 3 to 40 pt^2
+    np.testing.assert_allclose(sizes, np.linspace(3.0, 40.0, meta.num_steps))
+    np.testing.assert_allclose(green[0].get_offsets(), data.states[0, :, 0, :2])
+
+
+def test_samples_rejects_empty_split_and_bad_count() -> None:
+    meta = make_meta()
+    with pytest.raises(PlotInputError, match="no trajectories"):
+        plot_samples(make_trajectory_set(0, meta.num_steps), meta)
+    with pytest.raises(PlotInputError, match="num_per_case"):
+        plot_samples(make_trajectory_set(2, meta.num_steps), meta, num_per_case=0)
+
+
+def test_prediction_and_attention_figures(tmp_path: Path) -> None:
+    pred = load_predictions(write_predictions_npz(tmp_path / "p.npz", n=3))
+    assert pred.n == 3 and pred.case_names == ("major", "minor")
+    fig = plot_predictions(pred, 1)
+    assert len(fig.axes[0].collections) >= 2  # predicted dots per role
+    fig = plot_attention(pred, 2, agent=0, target=1)
+    line = next(x for x in fig.axes[0].get_lines() if x.get_label().startswith("attention on"))
+    np.testing.assert_allclose(line.get_ydata(), pred.attention[2, :, 0, 1])
+    np.testing.assert_allclose(line.get_xdata(), np.arange(pred.attention.shape[1]) * 0.1)
+    with pytest.raises(PlotInputError, match="out of range"):
+        plot_attention(pred, 3, agent=0, target=1)
+    with pytest.raises(PlotInputError, match="target 4 out of range"):
+        plot_attention(pred, 0, agent=0, target=4)
+
+
+def test_load_predictions_rejects_bad_files(tmp_path: Path) -> None:
+    good = write_predictions_npz(tmp_path / "p.npz")
+    arrays = dict(np.load(good))
+    np.savez(tmp_path / "missing.npz", **{k: v for k, v in arrays.items() if k != "roles"})
+    with pytest.raises(PlotInputError, match=r"missing arrays \['roles'\]"):
+        load_predictions(tmp_path / "missing.npz")
+    np.savez(tmp_path / "shape.npz", **{**arrays, "valid": arrays["valid"][:, :-1]})
+    with pytest.raises(PlotInputError, match="valid has shape"):
+        load_predictions(tmp_path / "shape.npz")
+    (tmp_path / "text.npz").write_text("nope")
+    with pytest.raises(PlotInputError, match="not an .npz file"):
+        load_predictions(tmp_path / "text.npz")
+
+
+def test_plots_do_not_touch_pyplot() -> None:
+    code = (
+        "import sys; sys.path.insert(0, 'tests'); import conftest\n"
+        "from predictor.plots import plot_samples\n"
+        "meta = conftest.make_meta()\n"
+        "plot_samples(conftest.make_trajectory_set(4, meta.num_steps), meta)\n"
+        "print('matplotlib.pyplot' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=tool_env(), cwd=REPO_ROOT, check=True, timeout=120)
+    assert out.stdout.strip() == "False"
+
+
+# ---------------------------------------------------------------------------------------------
+# Command line
+
+
+def test_plot_tool_writes_all_three_figures(tmp_path: Path, dataset_file: Path) -> None:
+    pred = write_predictions_npz(tmp_path / "pred.npz")
+    commands = {
+        "samples.png": ["samples", dataset_file, "--split", "test", "--num", "2"],
+        "pred.png": ["predictions", pred, "--index", "1"],
+        "attn.png": ["attention", pred, "--index", "0", "--agent", "1", "--target", "0"],
+    }
+    for name, args in commands.items():
+        out = tmp_path / name
+        result = _run_plot(*args, "--out", out)
+        assert result.returncode == 0, result.stderr
+        assert result.stdout.strip().splitlines()[-1] == str(out)
+        _assert_png(out)
+    result = _run_plot("predictions", pred, "--index", "2", "--out", tmp_path / "pred.png")
+    assert result.returncode == 0, result.stderr  # plots are replaced without --overwrite
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == sorted(["attn.png", "data.h5", "pred.npz", "pred.png", "samples.png"])
+
+
+def test_plot_tool_bad_input_is_one_line_exit_2(tmp_path: Path, dataset_file: Path) -> None:
+    pred = write_predictions_npz(tmp_path / "pred.npz", n=3)
+    no_attn = write_predictions_npz(tmp_path / "const_vel.npz", with_attention=False)
+    out = tmp_path / "out.png"
+    cases = [
+        (["predictions", pred, "--index", "3"], "scene index 3 out of range"),
+        (["attention", pred, "--agent", "1", "--target", "1"], "agent and target must differ"),
+        (["attention", no_attn], "no attention"),
+        (["predictions", tmp_path / "absent.npz"], "does not exist"),
+        (["samples", pred], "not an HDF5 file"),
+        (["samples", dataset_file, "--split", "dev"], "invalid choice"),
+    ]
+    for args, fragment in cases:
+        _assert_usage_error(_run_plot(*args, "--out", out), fragment)
+    _assert_usage_error(_run_plot("samples", dataset_file), "--out")
+    _assert_usage_error(_run_plot("samples", dataset_file, "--out", tmp_path / "x.nope"),
+                        "cannot write")
+    _assert_usage_error(_run_plot("samples", dataset_file, "--out", tmp_path / "no" / "x.png"),
+                        "does not exist")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["const_vel.npz", "data.h5", "pred.npz"]

@@ -1,0 +1,79 @@
+"""Shared helpers for the command-line tools in tools/ (import as `from _cli import ...`).
+
+- `ArgumentParser`: argparse whose usage errors are one line on stderr with exit status 2.
+- `fail(msg, code=2)`: print one error line to stderr and exit.
+- `require_file(path)`: exit 2 unless `path` is an existing file.
+- `check_output(path, overwrite)`: exit 2 if the output exists (without overwrite) or its
+  directory is missing.
+- `atomic_output(path)`: context manager yielding a temporary path beside `path`, renamed onto
+  `path` on success and removed on any failure (Ctrl-C included).
+
+Importing this module also puts the repository root on sys.path, so `python tools/x.py` works from
+a checkout that was not pip-installed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import secrets
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import NoReturn
+
+_REPO_ROOT = str(Path(__file__).resolve().parents[1])
+if _REPO_ROOT not in sys.path:
+    sys.path.insert(0, _REPO_ROOT)
+
+
+def fail(msg: str, code: int = 2) -> NoReturn:
+    """Print `error: msg` as one line on stderr and exit with `code` (2: usage/input error)."""
+    print(f"error: {' '.join(str(msg).split())}", file=sys.stderr)
+    raise SystemExit(code)
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse.ArgumentParser whose errors are a single stderr line and exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        fail(f"{self.prog}: {message} (see --help)")
+
+
+def require_file(path: str | os.PathLike, what: str = "input file") -> Path:
+    """The path as a Path; exits 2 with one line if it is not an existing file."""
+    path = Path(path)
+    if not path.is_file():
+        problem = "is not a file" if path.exists() else "does not exist"
+        fail(f"{what} {path} {problem}")
+    return path
+
+
+def check_output(path: str | os.PathLike, overwrite: bool = False) -> Path:
+    """The path as a Path; exits 2 if it exists (unless overwrite) or its directory is missing."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        fail(f"output {path} already exists; pass --overwrite to replace it")
+    if path.is_dir():
+        fail(f"output {path} is a directory")
+    if not path.parent.is_dir():
+        fail(f"output directory {path.parent} does not exist")
+    return path
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside `path`; on success it replaces `path`, else it is removed.
+
+    The temporary name keeps the target's suffix, so writers that infer the format from the file
+    name (e.g. matplotlib's savefig) still work.
+    """
+    target = Path(path)
+    temp = target.with_name(f".{target.stem}.{secrets.token_hex(6)}.tmp{target.suffix}")
+    try:
+        yield temp
+        os.replace(temp, target)
+    except BaseException:
+        temp.unlink(missing_ok=True)
+        raise

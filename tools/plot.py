@@ -1,0 +1,78 @@
+"""Plot sample trajectories, predictions and attention (paper style).
+
+    python tools/plot.py samples FILE --split test --num 4 --out samples.png
+    python tools/plot.py predictions PRED.npz --index 0 --out pred.png
+    python tools/plot.py attention PRED.npz --index 0 --agent 0 --target 1 --out attn.png
+
+FILE is a trajectory dataset (schema v1); PRED.npz is written by tools/evaluate.py. The output
+format follows the suffix of --out (.png, .pdf, .svg); an existing output is replaced. The output
+is written atomically and its path printed at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from _cli import ArgumentParser, atomic_output, check_output, fail, require_file
+from predictor.format import SPLITS, FormatError, read_meta, read_split
+from predictor.plots import (
+    PlotInputError,
+    load_predictions,
+    plot_attention,
+    plot_predictions,
+    plot_samples,
+    save_figure,
+)
+
+
+def _build_parser() -> ArgumentParser:
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=ArgumentParser)
+    samples = commands.add_parser("samples", help="sample trajectories, one column per case")
+    samples.add_argument("file", help="trajectory dataset (.h5)")
+    samples.add_argument("--split", choices=SPLITS, default="test", help="split to draw from")
+    samples.add_argument("--num", type=int, default=4, help="trajectories per case (first ones)")
+    predictions = commands.add_parser("predictions", help="predicted vs true trajectories")
+    predictions.add_argument("file", help="predictions file (.npz) from tools/evaluate.py")
+    predictions.add_argument("--index", type=int, default=0, help="scene index in the file")
+    attention = commands.add_parser("attention", help="attention of one agent on another")
+    attention.add_argument("file", help="predictions file (.npz) from tools/evaluate.py")
+    attention.add_argument("--index", type=int, default=0, help="scene index in the file")
+    attention.add_argument("--agent", type=int, default=0, help="attending agent")
+    attention.add_argument("--target", type=int, default=1, help="attended agent")
+    for sub in (samples, predictions, attention):
+        sub.add_argument("--out", required=True, help="output image (.png, .pdf, .svg)")
+        sub.add_argument("--dpi", type=int, default=120, help="resolution of raster output")
+    return parser
+
+
+def _make_figure(args: argparse.Namespace):
+    if args.command == "samples":
+        meta = read_meta(args.file)
+        return plot_samples(read_split(args.file, args.split), meta, num_per_case=args.num)
+    predictions = load_predictions(args.file)
+    if args.command == "predictions":
+        return plot_predictions(predictions, args.index)
+    return plot_attention(predictions, args.index, args.agent, args.target)
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = _build_parser().parse_args(argv)
+    require_file(args.file)
+    out = check_output(args.out, overwrite=True)  # plots are replaced silently
+    if args.dpi < 1:
+        fail(f"--dpi must be positive, got {args.dpi}")
+    try:
+        fig = _make_figure(args)
+    except (FormatError, PlotInputError) as err:
+        fail(str(err))
+    try:
+        with atomic_output(out) as temp:
+            save_figure(fig, temp, dpi=args.dpi)
+    except ValueError as err:  # e.g. an unsupported output suffix
+        fail(f"cannot write {out}: {err}")
+    print(out)
+
+
+if __name__ == "__main__":
+    main()
