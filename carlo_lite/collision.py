@@ -1,10 +1,11 @@
 """Collision and off-road checks: a numpy broad phase and a pymunk narrow phase.
 
 Every car is a pymunk box on a kinematic body (never a dynamic one, so pymunk never pushes cars
-around); the road edges are static segments. A vectorised broad phase (bounding circles for car
-pairs, bounding boxes for edges) picks the few candidates worth an exact test; only those cars'
-bodies are moved to their current pose and queried with `Space.shape_query`. In ordinary traffic
-there are no candidates and pymunk is not called at all.
+around); the road edges are static segments. A vectorised broad phase (axis-aligned bounding
+boxes of the cars against each other and against the edges) picks the few candidates worth an
+exact test; only those cars' bodies are moved to their current pose and queried with
+`Space.shape_query`. In ordinary traffic, side-by-side cars included, there are no candidates
+and pymunk is not called at all.
 """
 
 from __future__ import annotations
@@ -26,9 +27,8 @@ class CollisionChecker:
     ) -> None:
         self._length = np.asarray(length, dtype=float)
         self._width = np.asarray(width, dtype=float)
-        self._radius = 0.5 * np.hypot(self._length, self._width)  # (N,) bounding circles
-        self._reach_sq = np.add.outer(self._radius, self._radius) ** 2  # (N, N)
-        self._upper = np.triu(np.ones_like(self._reach_sq, dtype=bool), k=1)  # pairs i < j
+        num_cars = len(self._length)
+        self._upper = np.triu(np.ones((num_cars, num_cars), dtype=bool), k=1)  # pairs i < j
         self._edges = np.asarray(edges, dtype=float).reshape(-1, 2, 2)  # (E, 2, 2)
         self._edge_low = self._edges.min(axis=1)  # (E, 2) edge bounding boxes
         self._edge_high = self._edges.max(axis=1)
@@ -68,21 +68,33 @@ class CollisionChecker:
         hits = self._space.shape_query(self._shapes[index])
         return [self._owner[hit.shape] for hit in hits if hit.contact_point_set.points]
 
-    def candidate_pairs(self, xy: np.ndarray, active: np.ndarray) -> np.ndarray:
-        """Pairs (K, 2), i < j, of active cars whose bounding circles overlap."""
-        dx = np.subtract.outer(xy[:, 0], xy[:, 0])  # (N, N)
-        dy = np.subtract.outer(xy[:, 1], xy[:, 1])
-        close = (dx * dx + dy * dy <= self._reach_sq) & self._upper
+    def candidate_pairs(self, low: np.ndarray, high: np.ndarray, active: np.ndarray) -> np.ndarray:
+        """Pairs (K, 2), i < j, of active cars whose axis-aligned bounding boxes overlap.
+
+        `low`, `high` (N, 2) are the boxes' corners; side-by-side cars in adjacent lanes are
+        already ruled out here.
+        """
+        overlap_x = (low[:, None, 0] <= high[None, :, 0]) & (high[:, None, 0] >= low[None, :, 0])
+        overlap_y = (low[:, None, 1] <= high[None, :, 1]) & (high[:, None, 1] >= low[None, :, 1])
+        close = overlap_x & overlap_y & self._upper  # (N, N)
         if not active.all():
             close &= active[:, None] & active[None, :]
         first, second = np.nonzero(close)
         return np.stack([first, second], axis=1)
 
     def collision_pairs(
-        self, xy: np.ndarray, heading: np.ndarray, active: np.ndarray
+        self,
+        low: np.ndarray,
+        high: np.ndarray,
+        xy: np.ndarray,
+        heading: np.ndarray,
+        active: np.ndarray,
     ) -> np.ndarray:
-        """Pairs (K, 2), i < j, of active cars whose bodies overlap (touching counts)."""
-        candidates = self.candidate_pairs(xy, active)
+        """Pairs (K, 2), i < j, of active cars whose bodies overlap (touching counts).
+
+        `low`, `high` (N, 2) are the cars' axis-aligned bounding boxes (the broad phase).
+        """
+        candidates = self.candidate_pairs(low, high, active)
         if len(candidates) == 0:
             return candidates
         self._sync(np.unique(candidates), xy, heading)

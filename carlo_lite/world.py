@@ -180,7 +180,8 @@ class World:
 
     def collision_pairs(self) -> np.ndarray:
         """Pairs (K, 2), i < j, of active cars whose bodies overlap."""
-        return self._checker.collision_pairs(self._xy, self._heading, self.active)
+        low, high = self.bounding_boxes()
+        return self._checker.collision_pairs(low, high, self._xy, self._heading, self.active)
 
     def collisions(self) -> np.ndarray:
         """(N,) bool: the car overlaps at least one other active car."""
