@@ -1,0 +1,171 @@
+"""Configuration of the smooth-attention predictor: model sizes, training settings, variants.
+
+Every experiment variant of the paper is configuration of one model (see `VARIANTS`):
+
+| variant     | attention                         | sequence loss | smoothness (beta2) |
+|-------------|-----------------------------------|---------------|--------------------|
+| `ours`      | learned                           | yes           | 0.01               |
+| `nonsmooth` | learned                           | yes           | 0                  |
+| `s_attn`    | learned                           | no            | 0                  |
+| `average`   | uniform over present other agents | yes           | 0                  |
+| `correct`   | oracle labels (uniform if none)   | yes           | 0                  |
+
+`const_vel` is a baseline without training (`predictor.baselines`), not a variant.
+For `average` and `correct` the attention has no parameters, so a smoothness term would be a
+constant without gradient; it is fixed to 0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+ATTENTION_MODES = ("learned", "uniform", "oracle")
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Sizes and input scaling of `SmoothAttentionPredictor`.
+
+    Defaults are chosen so that a full paper-length training run (200 epochs of ~52 scenes with
+    22 agents, 462 edges per scene) takes under ten minutes on one CPU thread (see
+    benchmarks/bench_training.py); the edge RNN over all N*(N-1) edges dominates the cost.
+
+    Inputs are 2-D positions in metres. Inside the model they are expressed relative to a
+    per-scene origin (the mean position of the agents present at the last observed step) and
+    divided by `position_scale_m`; per-step displacements are divided by `step_scale_m`.
+    """
+
+    embed_dim: int = 16  # output width of F_embed, F_self and F_interact
+    edge_hidden: int = 16  # hidden width of the edge RNN G_interact and self RNN G_self
+    node_hidden: int = 32  # hidden width of the node RNN G_pred
+    attn_dim: int = 8  # output width of F_attn (space of the attention inner product)
+    position_scale_m: float = 10.0  # [m] positions relative to the scene origin are divided by it
+    step_scale_m: float = 1.0  # [m] per-step displacement scale (~ speed * dt = 10 m/s * 0.1 s)
+    min_std_m: float = 0.01  # [m] floor of the predicted standard deviations (Cholesky diagonal)
+    attention_mode: str = "learned"  # "learned" (F_attn), "uniform" (average) or "oracle"
+    chunk_steps: int = 8  # teacher-forced steps per LSTM call; affects speed only, not results
+
+    def __post_init__(self) -> None:
+        for name in ("embed_dim", "edge_hidden", "node_hidden", "attn_dim", "chunk_steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"ModelConfig.{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("position_scale_m", "step_scale_m", "min_std_m"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"ModelConfig.{name} must be > 0, got {getattr(self, name)}")
+        if self.attention_mode not in ATTENTION_MODES:
+            raise ValueError(
+                f"ModelConfig.attention_mode must be one of {ATTENTION_MODES}, "
+                f"got {self.attention_mode!r}"
+            )
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation settings (paper: Adam, lr 1e-3, batch 8, 200 epochs, beta1 = beta2 = 0.01).
+
+    Loss terms are means over the items they sum (present agent-steps, or present agent
+    transitions for the smoothness term); see `predictor.losses`.
+    """
+
+    variant: str = "ours"  # one of VARIANTS
+    seed: int = 0  # seeds model initialisation, batch order and rollout samples
+    epochs: int = 200  # passes over the training split
+    batch_size: int = 8  # scenes per optimiser step
+    lr: float = 1e-3  # Adam learning rate
+    beta1: float = 0.01  # weight of the variance penalties
+    beta2: float = 0.01  # weight of the attention total-variation (smoothness) penalties
+    tau: float = 1e-3  # [m] standard deviations above tau are penalised by the variance loss
+    sequence_loss: bool = True  # add the losses of the sampled, fed-back rollout
+    grad_clip_norm: float = 10.0  # clip the global gradient norm (0 disables); not in the paper
+    eval_every: int = 1  # validation ADE every k epochs (and after the last)
+    threads: int = 1  # torch.set_num_threads
+
+    def __post_init__(self) -> None:
+        if self.variant not in VARIANTS:
+            raise ValueError(f"unknown variant {self.variant!r}; choose from {sorted(VARIANTS)}")
+        checks = {
+            "epochs": self.epochs >= 0,
+            "batch_size": self.batch_size >= 1,
+            "lr": self.lr > 0,
+            "beta1": self.beta1 >= 0,
+            "beta2": self.beta2 >= 0,
+            "tau": self.tau >= 0,
+            "grad_clip_norm": self.grad_clip_norm >= 0,
+            "eval_every": self.eval_every >= 1,
+            "threads": self.threads >= 1,
+        }
+        for name, ok in checks.items():
+            if not ok:
+                raise ValueError(f"TrainConfig.{name} is out of range: {getattr(self, name)}")
+        spec = VARIANTS[self.variant]
+        if not spec.smooth and self.beta2 != 0:
+            raise ValueError(f"variant {self.variant!r} has no smoothness term; beta2 must be 0")
+        if self.sequence_loss != spec.sequence_loss:
+            raise ValueError(f"variant {self.variant!r} fixes sequence_loss={spec.sequence_loss}")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """What a named variant fixes: the attention mode, the sequence loss and smoothness."""
+
+    attention_mode: str
+    sequence_loss: bool
+    smooth: bool  # False forces beta2 = 0
+
+
+VARIANTS: dict[str, Variant] = {
+    "ours": Variant("learned", sequence_loss=True, smooth=True),
+    "nonsmooth": Variant("learned", sequence_loss=True, smooth=False),
+    "s_attn": Variant("learned", sequence_loss=False, smooth=False),
+    "average": Variant("uniform", sequence_loss=True, smooth=False),
+    "correct": Variant("oracle", sequence_loss=True, smooth=False),
+}
+
+
+def make_configs(
+    variant: str, model_overrides: dict[str, Any] | None = None, **train_overrides: Any
+) -> tuple[ModelConfig, TrainConfig]:
+    """Model and training configs for a variant, with optional field overrides.
+
+    Raises ValueError for an unknown variant, an unknown field, or a nonzero beta2 on a variant
+    that has no smoothness term.
+    """
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant {variant!r}; choose from {sorted(VARIANTS)}")
+    spec = VARIANTS[variant]
+    model_overrides = dict(model_overrides or {})
+    if "attention_mode" in model_overrides:
+        raise ValueError("attention_mode is fixed by the variant")
+    model = _build(ModelConfig, {**model_overrides, "attention_mode": spec.attention_mode})
+    if not spec.smooth and train_overrides.get("beta2", 0.0):
+        raise ValueError(f"variant {variant!r} has no smoothness term; beta2 must be 0")
+    if "sequence_loss" in train_overrides:
+        raise ValueError("sequence_loss is fixed by the variant")
+    train_values = {**train_overrides, "variant": variant, "sequence_loss": spec.sequence_loss}
+    if not spec.smooth:
+        train_values["beta2"] = 0.0
+    return model, _build(TrainConfig, train_values)
+
+
+def _build(cls: type, values: dict[str, Any]) -> Any:
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(values) - names)
+    if unknown:
+        raise ValueError(f"unknown {cls.__name__} field(s): {', '.join(unknown)}")
+    return cls(**values)
+
+
+def config_to_dict(config: ModelConfig | TrainConfig) -> dict[str, Any]:
+    """Plain-type dict of a config (for JSON and weights-only checkpoints)."""
+    return asdict(config)
+
+
+def model_config_from_dict(values: dict[str, Any]) -> ModelConfig:
+    """Rebuild a ModelConfig written by `config_to_dict`; unknown keys are an error."""
+    return _build(ModelConfig, dict(values))
+
+
+def train_config_from_dict(values: dict[str, Any]) -> TrainConfig:
+    """Rebuild a TrainConfig written by `config_to_dict`; unknown keys are an error."""
+    return _build(TrainConfig, dict(values))

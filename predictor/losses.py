@@ -1,0 +1,122 @@
+"""Losses of the paper: Gaussian NLL, variance penalty, attention total variation.
+
+Normalisation: the paper writes every term as a sum over agents and steps. We divide each sum by
+the number of items it runs over (present agent-steps for NLL and variance, present agent
+transitions for the total variation), pooled over the whole batch. The counts of the terms are
+nearly equal (T-1 predictions vs. T-2 transitions per agent), so the ratios between terms, and
+hence the meaning of beta1 = beta2 = 0.01, are those of the paper's sums; but the loss no longer
+grows with the batch size, the number of agents or the sequence length, and its value reads as
+"per agent-step" (NLL in nats for positions in metres).
+
+Total variation: sqrt(sum_j d_j^2) has no finite gradient where all d_j = 0 (which happens
+exactly, e.g. for constant attention). We use a safe square root: sqrt(x) where x > 0 and 0
+(with zero gradient, a valid subgradient) where x == 0; no epsilon enters the value.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from predictor.model import Gaussian2D, ModelOutput
+
+LOG_2PI = math.log(2.0 * math.pi)
+
+
+def gaussian_nll(target: Tensor, mean: Tensor, tril: Tensor) -> Tensor:
+    """-log N(target | mean, L L^T) for 2-D Gaussians, elementwise over leading dims.
+
+    target, mean (..., 2); tril (..., 3) = (l11, l21, l22) with l11, l22 > 0. Computed in log
+    space from the Cholesky factor: 0.5 |L^-1 d|^2 + log l11 + log l22 + log(2 pi).
+    """
+    diff = target - mean  # (..., 2)
+    z0 = diff[..., 0] / tril[..., 0]  # (...)
+    z1 = (diff[..., 1] - tril[..., 1] * z0) / tril[..., 2]  # (...)
+    log_det_half = torch.log(tril[..., 0]) + torch.log(tril[..., 2])  # (...)
+    return 0.5 * (z0 * z0 + z1 * z1) + log_det_half + LOG_2PI  # (...)
+
+
+def variance_penalty(gaussian: Gaussian2D, tau: float) -> Tensor:
+    """sum_k exp(sigma_k) * 1[sigma_k > tau] with sigma_k = sqrt(Sigma_kk) [m]: (...)."""
+    stds = gaussian.stds()  # (..., 2)
+    return (torch.exp(stds) * (stds > tau).to(stds.dtype)).sum(-1)  # (...)
+
+
+def safe_sqrt(x: Tensor) -> Tensor:
+    """sqrt(x) for x >= 0 with a zero (sub)gradient at x == 0 instead of infinity."""
+    positive = x > 0
+    return torch.where(positive, torch.sqrt(torch.where(positive, x, torch.ones_like(x))), 0.0)
+
+
+def attention_tv(attention: Tensor, present: Tensor) -> tuple[Tensor, Tensor]:
+    """Total variation of attention over time: (sum, count) of sqrt(sum_j (d theta_ij)^2).
+
+    attention (B, S, N, K) over consecutive steps; present (B, S, N) bool. A transition
+    t-1 -> t of agent i counts only if i is present at both steps.
+    """
+    diff = attention[:, 1:] - attention[:, :-1]  # (B, S-1, N, K)
+    norms = safe_sqrt((diff * diff).sum(-1))  # (B, S-1, N)
+    both = present[:, 1:] & present[:, :-1]  # (B, S-1, N)
+    return (norms * both.to(norms.dtype)).sum(), both.sum()
+
+
+def masked_sum(values: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
+    """(sum of values where mask, number of such items)."""
+    return (values * mask.to(values.dtype)).sum(), mask.sum()
+
+
+def _mean(total: Tensor, count: Tensor) -> Tensor:
+    return total / count.clamp(min=1).to(total.dtype)
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    """Weights of the loss terms (paper: beta1 = beta2 = 0.01, tau = 1e-3 m)."""
+
+    beta1: float = 0.01  # variance penalties
+    beta2: float = 0.01  # attention total variation
+    tau: float = 1e-3  # [m] threshold of the variance penalty
+    sequence: bool = True  # include the rollout terms
+
+
+def compute_loss(
+    out: ModelOutput, positions: Tensor, valid: Tensor, num_observed: int, weights: LossWeights
+) -> tuple[Tensor, dict[str, float]]:
+    """Total loss L = nll + nll_seq + beta1 (var + var_seq) + beta2 (tv + tv_seq) and its terms.
+
+    positions (B, T, N, 2) [m], valid (B, T, N). One-step terms cover t = 1 .. T-1 where the agent
+    is present at t and t-1; rollout terms cover t = T_obs .. T-1 where the agent is present at t
+    and was rolled out (present at T_obs-1).
+    """
+    terms: dict[str, Tensor] = {}
+    target = positions[:, 1:]  # (B, T-1, N, 2)
+    mask = valid[:, 1:] & valid[:, :-1]  # (B, T-1, N)
+    one = out.one_step
+    terms["nll"] = _mean(*masked_sum(gaussian_nll(target, one.mean, one.tril), mask))
+    terms["var"] = _mean(*masked_sum(variance_penalty(one, weights.tau), mask))
+    terms["tv"] = _mean(*attention_tv(out.attention, valid[:, :-1]))
+    total = terms["nll"] + weights.beta1 * terms["var"] + weights.beta2 * terms["tv"]
+    if weights.sequence:
+        if out.rollout is None:
+            raise ValueError("the sequence loss needs a rollout")
+        roll = out.rollout
+        seq_mask = valid[:, num_observed:] & out.rollout_present.unsqueeze(1)  # (B, T_pred, N)
+        seq_target = positions[:, num_observed:]  # (B, T_pred, N, 2)
+        seq_nll = gaussian_nll(seq_target, roll.mean, roll.tril)  # (B, T_pred, N)
+        terms["nll_seq"] = _mean(*masked_sum(seq_nll, seq_mask))
+        terms["var_seq"] = _mean(*masked_sum(variance_penalty(roll, weights.tau), seq_mask))
+        # rollout attention theta^t, t = T_obs-1 .. T-2: agents rolled out are present throughout
+        roll_present = out.rollout_present.unsqueeze(1).expand(-1, roll.mean.shape[1], -1)
+        terms["tv_seq"] = _mean(*attention_tv(out.rollout_attention, roll_present))
+        total = (
+            total
+            + terms["nll_seq"]
+            + weights.beta1 * terms["var_seq"]
+            + weights.beta2 * terms["tv_seq"]
+        )
+    summary = {name: float(value.detach()) for name, value in terms.items()}
+    summary["loss"] = float(total.detach())
+    return total, summary

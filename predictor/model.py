@@ -1,0 +1,377 @@
+"""The smooth-attention trajectory predictor (Cao et al., ICRA 2022, Sec. "Method").
+
+A directed complete graph with self-loops over the N agents of a scene:
+
+- edge (i, j), i != j:  x_ij = F_interact(concat(s_i, s_j)),  o_ij = G_interact(x_ij)  (LSTM)
+- self-loop (i, i):     x_ii = F_self(concat(s_i^{t-1}, s_i^t)), o_ii = G_self(x_ii)   (LSTM)
+- attention:            theta_ij = softmax over present j != i of <F_attn(o_ii), F_attn(o_ij)>
+- node:                 o_i = G_pred(F_embed(s_i), sum_j theta_ij o_ij, o_ii)            (LSTM)
+- output:               (mu_i, Sigma_i) of the next position = F_pred(o_i)
+
+Time indexing: the step at time t (t = 0 .. T-2) reads the states at t (and t-1 for the
+self-loop; at t = 0, or when the agent was absent at t-1, the previous state is the current one)
+and predicts the position at t+1. Its attention is theta^t.
+
+State and normalisation: the state s_i is the 2-D position (the fed-back rollout only has
+positions). Positions are taken relative to a per-scene origin, the mean position of the agents
+present at the last observed step, and divided by `position_scale_m`; absent agents get zeros.
+The network inputs are fixed invertible linear recombinations of the paper's concatenations,
+which the first linear layer absorbs (same function class, better conditioned):
+F_interact sees (s_i, s_j - s_i) and F_self sees (s_i^t, (p^t - p^{t-1}) / step_scale_m).
+The predicted mean is the current position plus a learned offset (times `step_scale_m`); the
+covariance is given by its Cholesky factor L = [[l11, 0], [l21, l22]] in metres, with
+l11, l22 = min_std_m + step_scale_m * softplus(.) > 0.
+
+Everything is batched over scenes, agents and edges; the only Python loop is over the time steps
+of the fed-back rollout. Absent agents are masked out of the attention.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from predictor.config import ModelConfig
+
+LSTMState = tuple[Tensor, Tensor]
+
+
+@dataclass
+class Gaussian2D:
+    """Bivariate Gaussians over positions [m]: mean (..., 2) and Cholesky entries (..., 3).
+
+    `tril[..., 0] = l11 > 0`, `tril[..., 1] = l21`, `tril[..., 2] = l22 > 0`; Sigma = L L^T.
+    """
+
+    mean: Tensor  # (..., 2)
+    tril: Tensor  # (..., 3)
+
+    def scale_tril(self) -> Tensor:
+        """Full lower-triangular factor L, shape (..., 2, 2)."""
+        zero = torch.zeros_like(self.tril[..., 0])  # (...)
+        row0 = torch.stack([self.tril[..., 0], zero], dim=-1)  # (..., 2)
+        row1 = torch.stack([self.tril[..., 1], self.tril[..., 2]], dim=-1)  # (..., 2)
+        return torch.stack([row0, row1], dim=-2)  # (..., 2, 2)
+
+    def covariance(self) -> Tensor:
+        """Sigma = L L^T, shape (..., 2, 2)."""
+        tril = self.scale_tril()  # (..., 2, 2)
+        return tril @ tril.transpose(-1, -2)  # (..., 2, 2)
+
+    def stds(self) -> Tensor:
+        """Marginal standard deviations sqrt(Sigma_kk), shape (..., 2)."""
+        second = torch.hypot(self.tril[..., 1], self.tril[..., 2])  # (...)
+        return torch.stack([self.tril[..., 0], second], -1)  # (..., 2)
+
+    def rsample(self) -> Tensor:
+        """One reparameterised sample mean + L eps, shape (..., 2)."""
+        eps = torch.randn_like(self.mean)  # (..., 2)
+        x = self.mean[..., 0] + self.tril[..., 0] * eps[..., 0]  # (...)
+        y = self.mean[..., 1] + self.tril[..., 1] * eps[..., 0] + self.tril[..., 2] * eps[..., 1]
+        return torch.stack([x, y], dim=-1)  # (..., 2)
+
+    def time_first(self) -> Gaussian2D:
+        """Swap the first two dimensions (time-first <-> batch-first)."""
+        return Gaussian2D(self.mean.transpose(0, 1), self.tril.transpose(0, 1))
+
+    @staticmethod
+    def cat(parts: list[Gaussian2D], dim: int) -> Gaussian2D:
+        """Concatenate along a leading dimension."""
+        return Gaussian2D(
+            torch.cat([p.mean for p in parts], dim), torch.cat([p.tril for p in parts], dim)
+        )
+
+
+class RecurrentState(NamedTuple):
+    """LSTM (h, c) of the edge, self-loop and node RNNs, each (1, batch * items, hidden)."""
+
+    edge: LSTMState | None
+    self_loop: LSTMState | None
+    node: LSTMState | None
+
+
+@dataclass
+class StepOutputs:
+    """Outputs of a block of S consecutive steps, time-first."""
+
+    gaussian: Gaussian2D  # (S, B, N, 2) mean, (S, B, N, 3) tril: next-position predictions
+    attention: Tensor  # (S, B, N, N-1): theta_ij over the other agents j (edge order)
+    state: RecurrentState
+
+
+@dataclass
+class ModelOutput:
+    """Everything the losses and the evaluation need, batch-first.
+
+    `attention` tensors are compact: entry [..., i, k] is the weight of agent i on its k-th
+    other agent (agents 0..N-1 without i, in order); `expand_attention` gives (..., N, N).
+    """
+
+    one_step: Gaussian2D | None  # (B, S1, N, .) predictions of t = 1 .. S1 (teacher forced)
+    attention: Tensor | None  # (B, S1, N, N-1) theta^t, t = 0 .. S1-1
+    rollout: Gaussian2D | None  # (B, T_pred, N, .) predictions of t = T_obs .. T-1, fed back
+    rollout_attention: Tensor | None  # (B, T_pred, N, N-1) theta^t, t = T_obs-1 .. T-2
+    rollout_present: Tensor | None  # (B, N) agents rolled out (present at step T_obs-1)
+
+
+def edge_index(num_agents: int, device: torch.device | None = None) -> tuple[Tensor, Tensor]:
+    """Tail i and head j of the N*(N-1) directed edges, i-major, heads ascending."""
+    pairs = torch.arange(num_agents * num_agents, device=device)  # (N*N,)
+    tail, head = pairs // num_agents, pairs % num_agents  # (N*N,), (N*N,)
+    keep = tail != head  # (N*N,)
+    return tail[keep], head[keep]  # (M,), (M,)
+
+
+def expand_attention(compact: Tensor) -> Tensor:
+    """Compact attention (..., N, N-1) to (..., N, N) with zeros on the diagonal."""
+    num_agents = compact.shape[-2]
+    tail, head = edge_index(num_agents, compact.device)  # (M,), (M,)
+    flat = compact.new_zeros(*compact.shape[:-2], num_agents * num_agents)  # (..., N*N)
+    flat[..., tail * num_agents + head] = compact.reshape(*compact.shape[:-2], -1)
+    return flat.view(*compact.shape[:-2], num_agents, num_agents)  # (..., N, N)
+
+
+def scene_origin(positions: Tensor, valid: Tensor, step: int) -> Tensor:
+    """Mean position [m] of the agents present at `step` (zeros if none): (B, T, N, 2) -> (B, 2)."""
+    mask = valid[:, step].unsqueeze(-1).to(positions.dtype)  # (B, N, 1)
+    total = (positions[:, step] * mask).sum(dim=1)  # (B, 2)
+    return total / mask.sum(dim=1).clamp(min=1.0)  # (B, 2)
+
+
+def masked_softmax(scores: Tensor, mask: Tensor) -> Tensor:
+    """Softmax over the last dim restricted to `mask`; rows without any True are all zero."""
+    lowest = torch.finfo(scores.dtype).min
+    weights = torch.softmax(scores.masked_fill(~mask, lowest), dim=-1)  # (..., K)
+    return weights * mask.to(scores.dtype)  # (..., K)
+
+
+class SmoothAttentionPredictor(nn.Module):
+    """Graph-RNN trajectory predictor with (learned, uniform or oracle) attention."""
+
+    def __init__(self, config: ModelConfig) -> None:
+        super().__init__()
+        self.config = config
+        emb, hid = config.embed_dim, config.edge_hidden
+        self.f_embed = nn.Sequential(nn.Linear(2, emb), nn.ReLU())
+        self.f_self = nn.Sequential(nn.Linear(4, emb), nn.ReLU())
+        self.f_interact = nn.Sequential(nn.Linear(4, emb), nn.ReLU())
+        self.g_self = nn.LSTM(emb, hid)
+        self.g_interact = nn.LSTM(emb, hid)
+        learned = config.attention_mode == "learned"
+        self.f_attn = nn.Linear(hid, config.attn_dim) if learned else None
+        self.g_pred = nn.LSTM(emb + 2 * hid, config.node_hidden)
+        self.f_pred = nn.Linear(config.node_hidden, 5)  # offset (2), Cholesky raw (3)
+
+    # ----------------------------------------------------------------------------- public API
+    def forward(
+        self,
+        positions: Tensor,
+        valid: Tensor,
+        num_observed: int,
+        labels: Tensor | None = None,
+        rollout: bool = True,
+    ) -> ModelOutput:
+        """Training pass: teacher-forced one-step predictions of t = 1 .. T-1 and, if `rollout`,
+        a rollout from step T_obs-1 that feeds back reparameterised samples.
+
+        positions (B, T, N, 2) [m], valid (B, T, N) bool, labels (B, T, N) int (-1 none; needed
+        for oracle attention). The rollout reuses the teacher-forced recurrent states after the
+        observed steps.
+        """
+        steps = self._prepare(positions, valid, num_observed, labels)
+        observed = self._block(steps, 0, num_observed, None)
+        rest = self._block(steps, num_observed, positions.shape[1] - 1, observed.state)
+        parts = [observed] if rest is None else [observed, rest]
+        one_step = Gaussian2D.cat([p.gaussian for p in parts], 0).time_first()
+        attention = torch.cat([p.attention for p in parts], 0).transpose(0, 1)  # (B, T-1, N, N-1)
+        out = ModelOutput(one_step, attention, None, None, None)
+        if rollout:
+            self._attach_rollout(out, steps, observed, sample=True)
+        return out
+
+    @torch.no_grad()
+    def predict(
+        self, positions: Tensor, valid: Tensor, num_observed: int, labels: Tensor | None = None
+    ) -> ModelOutput:
+        """Test-time prediction: observe t < T_obs, then feed back the predicted means.
+
+        Only positions and validity up to step T_obs-1 are read (plus oracle labels, if any).
+        `one_step`/`attention` cover the observed part (t = 1 .. T_obs, theta^0 .. theta^{T_obs-1}).
+        """
+        steps = self._prepare(positions, valid, num_observed, labels)
+        observed = self._block(steps, 0, num_observed, None)
+        out = ModelOutput(
+            observed.gaussian.time_first(), observed.attention.transpose(0, 1), None, None, None
+        )
+        self._attach_rollout(out, steps, observed, sample=False)
+        return out
+
+    # ----------------------------------------------------------------------------- internals
+    def _prepare(
+        self, positions: Tensor, valid: Tensor, num_observed: int, labels: Tensor | None
+    ) -> _Steps:
+        num_steps = positions.shape[1]
+        if not 1 <= num_observed < num_steps:
+            raise ValueError(f"num_observed must be in [1, {num_steps - 1}], got {num_observed}")
+        if self.config.attention_mode == "oracle" and labels is None:
+            raise ValueError("oracle attention needs attention labels")
+        pos = positions.transpose(0, 1)  # (T, B, N, 2)
+        present = valid.transpose(0, 1)  # (T, B, N)
+        prev_pos = torch.cat([pos[:1], pos[:-1]], 0)  # (T, B, N, 2)
+        prev_present = torch.cat([present[:1], present[:-1]], 0)  # (T, B, N)
+        prev_pos = torch.where(prev_present.unsqueeze(-1), prev_pos, pos)  # (T, B, N, 2)
+        return _Steps(
+            pos=pos,
+            prev_pos=prev_pos,
+            present=present,
+            labels=None if labels is None else labels.transpose(0, 1).long(),  # (T, B, N)
+            origin=scene_origin(positions, valid, num_observed - 1),  # (B, 2)
+            num_observed=num_observed,
+        )
+
+    def _block(
+        self, steps: _Steps, start: int, stop: int, state: RecurrentState | None
+    ) -> StepOutputs | None:
+        """Teacher-forced steps start .. stop-1 (None if empty).
+
+        The steps run in chunks of `chunk_steps` per nn.LSTM call, carrying the recurrent state:
+        the same result as one call over the whole span, but faster on CPU (the working set of a
+        chunk stays in cache; measured ~2x for the edge RNN).
+        """
+        if stop <= start:
+            return None
+        chunks = []
+        for first in range(start, stop, self.config.chunk_steps):
+            sl = slice(first, min(first + self.config.chunk_steps, stop))
+            labels = None if steps.labels is None else steps.labels[sl]
+            chunk = self._run(
+                steps.pos[sl], steps.prev_pos[sl], steps.present[sl], steps.origin, labels, state
+            )
+            chunks.append(chunk)
+            state = chunk.state
+        return StepOutputs(
+            Gaussian2D.cat([c.gaussian for c in chunks], 0),
+            torch.cat([c.attention for c in chunks], 0),  # (S, B, N, N-1)
+            state,
+        )
+
+    def _attach_rollout(
+        self, out: ModelOutput, steps: _Steps, observed: StepOutputs, sample: bool
+    ) -> None:
+        """Fill `out.rollout*`: feed back samples (or means) from step T_obs on."""
+        t_obs = steps.num_observed
+        num_steps = steps.pos.shape[0]
+        present = steps.present[t_obs - 1]  # (B, N) agents rolled out
+        gaussian = Gaussian2D(observed.gaussian.mean[-1], observed.gaussian.tril[-1])  # (B, N, .)
+        gaussians, attentions = [gaussian], [observed.attention[-1]]
+        state, prev = observed.state, steps.pos[t_obs - 1]  # prev: (B, N, 2)
+        for t in range(t_obs, num_steps - 1):
+            current = gaussian.rsample() if sample else gaussian.mean  # (B, N, 2)
+            current = torch.where(present.unsqueeze(-1), current, torch.zeros_like(current))
+            labels = None if steps.labels is None else steps.labels[t : t + 1]  # (1, B, N)
+            block = self._run(
+                current[None], prev[None], present[None], steps.origin, labels, state
+            )
+            gaussian = Gaussian2D(block.gaussian.mean[0], block.gaussian.tril[0])  # (B, N, .)
+            gaussians.append(gaussian)
+            attentions.append(block.attention[0])
+            state, prev = block.state, current
+        out.rollout = Gaussian2D(
+            torch.stack([g.mean for g in gaussians], 1), torch.stack([g.tril for g in gaussians], 1)
+        )  # (B, T_pred, N, 2), (B, T_pred, N, 3)
+        out.rollout_attention = torch.stack(attentions, 1)  # (B, T_pred, N, N-1)
+        out.rollout_present = present
+
+    def _run(
+        self,
+        pos: Tensor,
+        prev_pos: Tensor,
+        present: Tensor,
+        origin: Tensor,
+        labels: Tensor | None,
+        state: RecurrentState | None,
+    ) -> StepOutputs:
+        """S consecutive steps through the graph; inputs time-first (S, B, N, .)."""
+        num_steps, batch, num_agents, _ = pos.shape
+        cfg = self.config
+        tail, head = edge_index(num_agents, pos.device)  # (M,), (M,)
+        mask = present.unsqueeze(-1)  # (S, B, N, 1)
+        rel = (pos - origin[None, :, None]) / cfg.position_scale_m  # (S, B, N, 2)
+        rel = torch.where(mask, rel, torch.zeros_like(rel))  # (S, B, N, 2)
+        step = torch.where(mask, (pos - prev_pos) / cfg.step_scale_m, torch.zeros_like(pos))
+        x_self = self.f_self(torch.cat([rel, step], -1))  # (S, B, N, E)
+        x_edge = self._edge_inputs(rel, head)  # (S, B, N, N-1, E)
+        state = state or RecurrentState(None, None, None)
+        o_edge, h_edge = self.g_interact(x_edge.flatten(1, 3), state.edge)  # (S, B*M, H)
+        o_self, h_self = self.g_self(x_self.flatten(1, 2), state.self_loop)  # (S, B*N, H)
+        o_edge = o_edge.view(num_steps, batch, num_agents, num_agents - 1, -1)  # (S, B, N, N-1, H)
+        o_self = o_self.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
+        theta = self._attention(o_self, o_edge, present, labels, head)  # (S, B, N, N-1)
+        attended = (theta.unsqueeze(-1) * o_edge).sum(-2)  # (S, B, N, H)
+        node_in = torch.cat([self.f_embed(rel), attended, o_self], -1)  # (S, B, N, E+2H)
+        o_node, h_node = self.g_pred(node_in.flatten(1, 2), state.node)  # (S, B*N, Hn)
+        raw = self.f_pred(o_node).view(num_steps, batch, num_agents, 5)  # (S, B, N, 5)
+        gaussian = self._gaussian(raw, pos)
+        return StepOutputs(gaussian, theta, RecurrentState(h_edge, h_self, h_node))
+
+    def _edge_inputs(self, rel: Tensor, head: Tensor) -> Tensor:
+        """x_ij = F_interact(concat(s_i, s_j - s_i)), all edges: (S, B, N, 2) -> (S, B, N, N-1, E).
+
+        The linear layer is split into a tail part and a head part, evaluated per agent and
+        added per edge, which is exact and avoids a matmul over the N*(N-1) edges.
+        """
+        linear = self.f_interact[0]
+        w_tail, w_rel = linear.weight[:, :2], linear.weight[:, 2:]  # (E, 2), (E, 2)
+        per_tail = F.linear(rel, w_tail - w_rel, linear.bias)  # (S, B, N, E)
+        per_head = F.linear(rel, w_rel)  # (S, B, N, E)
+        shape = (*rel.shape[:2], rel.shape[2], rel.shape[2] - 1, per_head.shape[-1])
+        heads = per_head[:, :, head].view(shape)  # (S, B, N, N-1, E)
+        return self.f_interact[1](per_tail.unsqueeze(-2) + heads)  # (S, B, N, N-1, E)
+
+    def _attention(
+        self, o_self: Tensor, o_edge: Tensor, present: Tensor, labels: Tensor | None, head: Tensor
+    ) -> Tensor:
+        """theta (S, B, N, N-1) over present other agents; zero rows for absent agents."""
+        shape = o_edge.shape[:-1]  # (S, B, N, N-1)
+        others = present[..., head].view(shape)  # (S, B, N, N-1) head j present
+        mask = others & present.unsqueeze(-1)  # (S, B, N, N-1) tail i present too
+        mode = self.config.attention_mode
+        if mode == "learned":
+            # <F_attn(o_ii), W o_ij + b> = <W^T F_attn(o_ii), o_ij> + <F_attn(o_ii), b>; the
+            # last term is the same for every j of row i and cancels in the softmax, so F_attn
+            # need not be applied to the N*(N-1) edge outputs (same theta, far cheaper).
+            query = self.f_attn(o_self) @ self.f_attn.weight  # (S, B, N, H)
+            scores = (o_edge * query.unsqueeze(-2)).sum(-1)  # (S, B, N, N-1)
+            return masked_softmax(scores, mask)
+        uniform = masked_softmax(torch.zeros(shape, device=o_edge.device), mask)  # (S,B,N,N-1)
+        if mode == "uniform":
+            return uniform
+        heads = head.view(present.shape[-1], -1)  # (N, N-1) index of the k-th other agent
+        onehot = (heads == labels.unsqueeze(-1)) & mask  # (S, B, N, N-1)
+        labelled = onehot.any(-1, keepdim=True)  # (S, B, N, 1)
+        return torch.where(labelled, onehot.to(uniform.dtype), uniform)  # (S, B, N, N-1)
+
+    def _gaussian(self, raw: Tensor, pos: Tensor) -> Gaussian2D:
+        """Next-position Gaussian from the F_pred output (..., 5) and current positions (..., 2)."""
+        cfg = self.config
+        mean = pos + raw[..., :2] * cfg.step_scale_m  # (..., 2)
+        diag = cfg.min_std_m + cfg.step_scale_m * F.softplus(raw[..., 2:4])  # (..., 2)
+        off = raw[..., 4:5] * cfg.step_scale_m  # (..., 1)
+        tril = torch.cat([diag[..., :1], off, diag[..., 1:]], -1)  # (..., 3)
+        return Gaussian2D(mean, tril)
+
+
+@dataclass
+class _Steps:
+    """Per-step model inputs, time-first."""
+
+    pos: Tensor  # (T, B, N, 2) [m]
+    prev_pos: Tensor  # (T, B, N, 2) [m] previous position (current one if absent before)
+    present: Tensor  # (T, B, N) bool
+    labels: Tensor | None  # (T, B, N) int64 attention labels, -1 none
+    origin: Tensor  # (B, 2) [m]
+    num_observed: int

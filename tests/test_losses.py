@@ -1,0 +1,135 @@
+"""Losses against torch.distributions and hand-computed values."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch.distributions import MultivariateNormal
+
+from predictor.losses import (
+    LossWeights,
+    attention_tv,
+    compute_loss,
+    gaussian_nll,
+    safe_sqrt,
+    variance_penalty,
+)
+from predictor.model import Gaussian2D, ModelOutput
+
+
+def random_gaussians(shape: tuple[int, ...], seed: int = 0) -> Gaussian2D:
+    gen = torch.Generator().manual_seed(seed)
+    mean = torch.randn(*shape, 2, generator=gen, dtype=torch.float64)
+    diag = torch.rand(*shape, 2, generator=gen, dtype=torch.float64) * 2 + 0.01
+    off = torch.randn(*shape, 1, generator=gen, dtype=torch.float64)
+    return Gaussian2D(mean, torch.cat([diag[..., :1], off, diag[..., 1:]], -1))
+
+
+def test_nll_matches_multivariate_normal():
+    g = random_gaussians((4, 7))
+    target = g.mean + torch.randn(4, 7, 2, dtype=torch.float64)
+    expected = -MultivariateNormal(g.mean, scale_tril=g.scale_tril()).log_prob(target)
+    torch.testing.assert_close(gaussian_nll(target, g.mean, g.tril), expected)
+
+
+def test_nll_stays_finite_and_accurate_for_tiny_and_huge_scales():
+    mean = torch.zeros(2, 2)
+    tril = torch.tensor([[1e-4, 0.0, 1e-4], [1e4, 5e3, 1e4]])
+    target = torch.tensor([[1e-4, -2e-4], [3e4, 1e4]])
+    got = gaussian_nll(target, mean, tril)
+    expected = -MultivariateNormal(mean.double(), scale_tril=Gaussian2D(
+        mean.double(), tril.double()).scale_tril()).log_prob(target.double())
+    torch.testing.assert_close(got.double(), expected, rtol=1e-5, atol=1e-4)
+
+
+def test_variance_penalty_by_hand():
+    # stds: sqrt(Sigma_11) = l11, sqrt(Sigma_22) = hypot(l21, l22)
+    tril = torch.tensor([[0.5, 0.3, 0.4], [5e-4, 0.0, 2.0], [0.5, 0.0, 0.5]])
+    g = Gaussian2D(torch.zeros(3, 2), tril)
+    got = variance_penalty(g, tau=1e-3)
+    expected = torch.tensor([2 * math.exp(0.5), math.exp(2.0), 2 * math.exp(0.5)])
+    torch.testing.assert_close(got, expected)
+    torch.testing.assert_close(variance_penalty(g, tau=0.6), torch.tensor([0, math.exp(2.0), 0]))
+
+
+def test_total_variation_by_hand():
+    # one scene, 3 agents (K = 2 other agents each), 4 steps
+    theta = torch.zeros(1, 4, 3, 2)
+    theta[0, :, 0] = torch.tensor([[1.0, 0.0], [0.5, 0.5], [0.5, 0.5], [0.0, 1.0]])
+    theta[0, :, 1] = torch.tensor([[0.2, 0.8], [0.8, 0.2], [0.8, 0.2], [0.8, 0.2]])
+    present = torch.ones(1, 4, 3, dtype=torch.bool)
+    present[0, 3, 1] = False  # agent 1 absent at t = 3: transition 2 -> 3 not counted
+    total, count = attention_tv(theta, present)
+    agent0 = math.sqrt(0.5) + 0.0 + math.sqrt(0.5)
+    agent1 = math.sqrt(0.72) + 0.0
+    torch.testing.assert_close(total, torch.tensor(agent0 + agent1))
+    assert int(count) == 3 + 2 + 3  # agent 2 contributes zero over 3 transitions
+
+
+def test_safe_sqrt_value_and_gradient():
+    x = torch.tensor([0.0, 0.25, 4.0], requires_grad=True)
+    y = safe_sqrt(x)
+    y.sum().backward()
+    torch.testing.assert_close(y.detach(), torch.tensor([0.0, 0.5, 2.0]))
+    torch.testing.assert_close(x.grad, torch.tensor([0.0, 1.0, 0.25]))
+
+
+def test_tv_gradient_is_finite_for_constant_attention():
+    theta = torch.full((1, 3, 2, 1), 1.0, requires_grad=True)
+    total, _ = attention_tv(theta, torch.ones(1, 3, 2, dtype=torch.bool))
+    total.backward()
+    assert torch.isfinite(theta.grad).all() and float(total.detach()) == 0.0
+
+
+def hand_output(batch: int, steps: int, agents: int, num_observed: int) -> ModelOutput:
+    one = random_gaussians((batch, steps - 1, agents), seed=1)
+    roll = random_gaussians((batch, steps - num_observed, agents), seed=2)
+    attention = torch.softmax(torch.randn(batch, steps - 1, agents, agents - 1).double(), -1)
+    roll_attention = torch.softmax(
+        torch.randn(batch, steps - num_observed, agents, agents - 1).double(), -1
+    )
+    present = torch.ones(batch, agents, dtype=torch.bool)
+    return ModelOutput(one, attention, roll, roll_attention, present)
+
+
+def test_compute_loss_is_the_weighted_sum_of_masked_means():
+    torch.manual_seed(0)
+    batch, steps, agents, t_obs = 2, 6, 3, 2
+    out = hand_output(batch, steps, agents, t_obs)
+    positions = torch.randn(batch, steps, agents, 2, dtype=torch.float64)
+    valid = torch.ones(batch, steps, agents, dtype=torch.bool)
+    valid[0, 4:, 2] = False
+    out.rollout_present[1, 1] = False
+    weights = LossWeights(beta1=0.3, beta2=0.7, tau=1e-3)
+    total, terms = compute_loss(out, positions, valid, t_obs, weights)
+    # independent one-step NLL: average of -log_prob over (b, t, i) present at t and t-1
+    dist = MultivariateNormal(out.one_step.mean, scale_tril=out.one_step.scale_tril())
+    logp = dist.log_prob(positions[:, 1:])  # (B, T-1, N)
+    keep = valid[:, 1:] & valid[:, :-1]
+    assert abs(terms["nll"] - float(-logp[keep].mean())) < 1e-9
+    roll = MultivariateNormal(out.rollout.mean, scale_tril=out.rollout.scale_tril())
+    roll_keep = valid[:, t_obs:] & out.rollout_present.unsqueeze(1)
+    roll_nll = -roll.log_prob(positions[:, t_obs:])[roll_keep].mean()
+    assert abs(terms["nll_seq"] - float(roll_nll)) < 1e-9
+    expected = (
+        terms["nll"] + terms["nll_seq"] + 0.3 * (terms["var"] + terms["var_seq"])
+        + 0.7 * (terms["tv"] + terms["tv_seq"])
+    )
+    assert abs(float(total) - expected) < 1e-9 and abs(terms["loss"] - expected) < 1e-9
+    # the step-only loss leaves the rollout out
+    _, one_terms = compute_loss(out, positions, valid, t_obs, LossWeights(sequence=False))
+    assert "nll_seq" not in one_terms and one_terms["nll"] == terms["nll"]
+
+
+def test_absent_agents_do_not_enter_the_loss():
+    out = hand_output(1, 5, 3, 2)
+    positions = torch.randn(1, 5, 3, 2, dtype=torch.float64)
+    valid = torch.ones(1, 5, 3, dtype=torch.bool)
+    valid[0, :, 2] = False
+    out.rollout_present[0, 2] = False
+    _, a = compute_loss(out, positions, valid, 2, LossWeights())
+    positions[0, :, 2] += 100.0
+    out.one_step.mean[0, :, 2] -= 7.0
+    _, b = compute_loss(out, positions, valid, 2, LossWeights())
+    assert a == b
