@@ -1,0 +1,151 @@
+"""Evaluation metrics on numpy arrays: ADE, FDE and attention accuracy, per case and overall.
+
+Conventions (shared by every predictor, the constant-velocity baseline included):
+
+- An agent is predicted in a scene if it is present at the last observed step T_obs-1; an error
+  counts at a predicted step t >= T_obs where that agent is also present (`prediction_mask`).
+- ADE [m] is the mean Euclidean error over all counted (scene, step, agent) triples of a group,
+  pooled (not a mean of per-scene means). FDE [m] is the mean error at the final step T-1 over the
+  agents counted there.
+- Two agent groups are reported: `all_agents` and `main_agents` (the first two agent slots, the
+  interacting cars of the synthetic scenarios). The headline is `main_agents`: the distractors
+  drive at constant speed and would otherwise dominate the average of 22 agents.
+- Attention accuracy: over (step t, agent i) pairs with T_obs <= t <= T-2 (the fed-back steps
+  whose attention theta^t is computed from predicted states), t inside the interaction period,
+  i predicted and present at t and labelled (label >= 0): the share where argmax_j theta^t_ij
+  equals the label.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+MAIN_AGENTS = 2  # the first agent slots are the main (interacting) cars
+
+
+def prediction_mask(valid: np.ndarray, num_observed: int) -> np.ndarray:
+    """(n, T, N) validity -> (n, T_pred, N): predicted (present at T_obs-1) and present at t."""
+    return valid[:, num_observed:] & valid[:, num_observed - 1 : num_observed]
+
+
+def _errors(pred: np.ndarray, true: np.ndarray, mask: np.ndarray, agents: slice) -> dict:
+    dist = np.linalg.norm(pred[:, :, agents] - true[:, :, agents], axis=-1)  # (n, T_pred, A)
+    keep = mask[:, :, agents]  # (n, T_pred, A)
+    dist = np.where(keep, dist, 0.0)
+    return {
+        "ade_sum": dist.sum(axis=(1, 2)),  # (n,)
+        "ade_count": keep.sum(axis=(1, 2)),  # (n,)
+        "fde_sum": dist[:, -1].sum(axis=-1),  # (n,)
+        "fde_count": keep[:, -1].sum(axis=-1),  # (n,)
+    }
+
+
+def _ratio(total: float, count: int) -> float | None:
+    return float(total / count) if count > 0 else None
+
+
+def _pool(parts: dict, rows: np.ndarray) -> dict:
+    ade_count, fde_count = int(parts["ade_count"][rows].sum()), int(parts["fde_count"][rows].sum())
+    return {
+        "ade": _ratio(float(parts["ade_sum"][rows].sum()), ade_count),
+        "fde": _ratio(float(parts["fde_sum"][rows].sum()), fde_count),
+        "count": ade_count,
+        "final_count": fde_count,
+        "scenes": int(rows.sum()),
+    }
+
+
+def displacement_metrics(
+    pred: np.ndarray,
+    true: np.ndarray,
+    mask: np.ndarray,
+    case: np.ndarray,
+    case_names: Sequence[str],
+) -> dict:
+    """ADE/FDE [m] per agent group, overall and per case.
+
+    pred, true (n, T_pred, N, 2) [m]; mask (n, T_pred, N) bool; case (n,) indices into case_names.
+    Returns {group: {"overall": {...}, "cases": {name: {...}}}} with keys ade, fde, count,
+    final_count, scenes (ade/fde None where nothing counts).
+    """
+    groups = {"all_agents": slice(None), "main_agents": slice(0, MAIN_AGENTS)}
+    case = np.asarray(case)
+    result = {}
+    for group, agents in groups.items():
+        parts = _errors(pred, true, mask, agents)
+        result[group] = {
+            "overall": _pool(parts, np.ones(len(case), dtype=bool)),
+            "cases": {name: _pool(parts, case == k) for k, name in enumerate(case_names)},
+        }
+    return result
+
+
+def attention_hits(
+    attention: np.ndarray,
+    labels: np.ndarray,
+    interaction: np.ndarray,
+    valid: np.ndarray,
+    num_observed: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-scene (hits, counted pairs) of the attention accuracy (see module docstring).
+
+    attention (n, T-1, N, N) theta^t_ij; labels (n, T, N) int (-1 none); interaction (n, T) bool;
+    valid (n, T, N) bool. Returns two (n,) int arrays.
+    """
+    steps = slice(num_observed, attention.shape[1])  # t = T_obs .. T-2
+    theta = attention[:, steps]  # (n, S, N, N)
+    label = labels[:, steps]  # (n, S, N)
+    keep = (
+        (label >= 0)
+        & interaction[:, steps, None]
+        & valid[:, steps]
+        & valid[:, num_observed - 1 : num_observed]
+    )  # (n, S, N)
+    hit = (np.argmax(theta, axis=-1) == label) & keep  # (n, S, N)
+    return hit.sum(axis=(1, 2)), keep.sum(axis=(1, 2))
+
+
+def attention_accuracy(
+    attention: np.ndarray,
+    labels: np.ndarray,
+    interaction: np.ndarray,
+    valid: np.ndarray,
+    num_observed: int,
+    case: np.ndarray,
+    case_names: Sequence[str],
+) -> dict:
+    """Attention accuracy overall and per case: {"overall": {...}, "cases": {...}}.
+
+    Each entry has accuracy (None if nothing counts or the attention is NaN, as for constant
+    velocity) and count. Only labelled agents count, so in practice the main agents.
+    """
+    hits, counts = attention_hits(attention, labels, interaction, valid, num_observed)
+    undefined = bool(np.isnan(attention).any())
+    case = np.asarray(case)
+
+    def pool(rows: np.ndarray) -> dict:
+        count = int(counts[rows].sum())
+        accuracy = None if undefined else _ratio(float(hits[rows].sum()), count)
+        return {"accuracy": accuracy, "count": count}
+
+    return {
+        "overall": pool(np.ones(len(case), dtype=bool)),
+        "cases": {name: pool(case == k) for k, name in enumerate(case_names)},
+    }
+
+
+def headline(metrics: dict) -> str:
+    """One-line text of the headline numbers of an evaluation result."""
+    main, every = metrics["main_agents"]["overall"], metrics["all_agents"]["overall"]
+    accuracy = metrics["attention_accuracy"]["overall"]["accuracy"]
+
+    def fmt(value: float | None, spec: str = ".3f") -> str:
+        return "n/a" if value is None or math.isnan(value) else format(value, spec)
+
+    return (
+        f"main agents ADE {fmt(main['ade'])} m FDE {fmt(main['fde'])} m; all agents ADE "
+        f"{fmt(every['ade'])} m FDE {fmt(every['fde'])} m; attention accuracy {fmt(accuracy)}"
+    )

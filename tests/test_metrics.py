@@ -1,0 +1,89 @@
+"""ADE/FDE, attention accuracy and the constant-velocity baseline on hand-made predictions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from predictor.baselines import constant_velocity
+from predictor.metrics import attention_accuracy, displacement_metrics, prediction_mask
+
+
+def test_ade_fde_by_hand():
+    # 2 scenes, 2 predicted steps, 3 agents; errors are 3-4-5 triangles and axis offsets
+    true = np.zeros((2, 2, 3, 2))
+    pred = np.zeros((2, 2, 3, 2))
+    pred[0, 0, 0] = [3, 4]  # error 5
+    pred[0, 1, 0] = [6, 8]  # error 10 (final)
+    pred[0, :, 1] = [1, 0]  # error 1 at both steps
+    pred[0, :, 2] = [0, 2]  # error 2 at both steps
+    pred[1, :, 0] = [0, 1]  # error 1 at both steps
+    pred[1, :, 2] = [0, 100]  # absent: ignored
+    mask = np.ones((2, 2, 3), dtype=bool)
+    mask[1, :, 2] = False
+    mask[1, 1, 1] = False  # scene 1, agent 1 absent at the final step
+    case = np.array([0, 1])
+    got = displacement_metrics(pred, true, mask, case, ["major", "minor"])
+    main, every = got["main_agents"], got["all_agents"]
+    # main agents (0, 1): errors 5, 10, 1, 1 | 1, 1, 0
+    assert main["overall"]["ade"] == pytest.approx((5 + 10 + 1 + 1 + 1 + 1 + 0) / 7)
+    assert main["overall"]["fde"] == pytest.approx((10 + 1 + 1) / 3)
+    assert main["cases"]["major"]["ade"] == pytest.approx(17 / 4)
+    assert main["cases"]["minor"]["fde"] == pytest.approx(1.0)
+    assert every["overall"]["ade"] == pytest.approx((17 + 4 + 2) / 9)
+    assert every["overall"]["fde"] == pytest.approx((10 + 1 + 2 + 1) / 4)
+    assert every["overall"]["count"] == 9 and every["overall"]["scenes"] == 2
+
+
+def test_empty_case_gives_none():
+    got = displacement_metrics(
+        np.zeros((1, 2, 2, 2)), np.zeros((1, 2, 2, 2)), np.ones((1, 2, 2), bool), np.array([0]),
+        ["a", "b"],
+    )
+    assert got["all_agents"]["cases"]["b"] == {
+        "ade": None, "fde": None, "count": 0, "final_count": 0, "scenes": 0
+    }
+
+
+def test_prediction_mask_needs_presence_at_last_observed_step():
+    valid = np.ones((1, 5, 3), dtype=bool)
+    valid[0, 1, 1] = False  # agent 1 missing at T_obs-1 = 1: never predicted
+    valid[0, 3, 2] = False  # agent 2 missing at one predicted step
+    mask = prediction_mask(valid, 2)
+    assert mask.shape == (1, 3, 3)
+    assert mask[0, :, 1].sum() == 0 and mask[0, :, 2].tolist() == [True, False, True]
+
+
+def test_attention_accuracy_by_hand():
+    # T = 5, T_obs = 2: counted steps t = 2, 3; 3 agents
+    n, steps, agents = 1, 5, 3
+    attention = np.zeros((n, steps - 1, agents, agents), dtype=np.float32)
+    attention[0, :, 0] = [0.0, 0.7, 0.3]  # agent 0 attends agent 1
+    attention[0, 2, 1] = [0.9, 0.0, 0.1]  # agent 1 attends 0 at t = 2
+    attention[0, 3, 1] = [0.2, 0.0, 0.8]  # ... and 2 at t = 3
+    labels = np.full((n, steps, agents), -1, dtype=np.int16)
+    labels[0, :, 0], labels[0, :, 1] = 1, 0
+    interaction = np.ones((n, steps), dtype=bool)
+    valid = np.ones((n, steps, agents), dtype=bool)
+    got = attention_accuracy(attention, labels, interaction, valid, 2, np.array([0]), ["x"])
+    assert got["overall"] == {"accuracy": 0.75, "count": 4}  # hits: (2,0) (3,0) (2,1)
+    interaction[0, 3] = False
+    got = attention_accuracy(attention, labels, interaction, valid, 2, np.array([0]), ["x"])
+    assert got["overall"] == {"accuracy": 1.0, "count": 2}
+    nan = np.full_like(attention, np.nan)
+    got = attention_accuracy(nan, labels, interaction, valid, 2, np.array([0]), ["x"])
+    assert got["cases"]["x"]["accuracy"] is None and got["cases"]["x"]["count"] == 2
+
+
+def test_constant_velocity_extrapolates_the_last_step():
+    positions = np.zeros((1, 5, 2, 2), dtype=np.float32)
+    positions[0, :, 0, 0] = [0, 1, 3, 99, 99]  # last observed step +2 m in x
+    positions[0, :, 1] = [[5, 5], [0, 0], [6, 7], [0, 0], [0, 0]]
+    valid = np.ones((1, 5, 2), dtype=bool)
+    valid[0, 1, 1] = False  # agent 1 absent at T_obs-2: zero velocity
+    pred = constant_velocity(positions, valid, 3)
+    assert pred.shape == (1, 2, 2, 2) and pred.dtype == np.float32
+    np.testing.assert_allclose(pred[0, :, 0, 0], [5, 7])
+    np.testing.assert_allclose(pred[0, :, 1], [[6, 7], [6, 7]])
+    with pytest.raises(ValueError):
+        constant_velocity(positions, valid, 5)
