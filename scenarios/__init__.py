@@ -1,1 +1,34 @@
-"""Double Merge and Halting Car: synthetic multi-agent driving scenarios on carlo_lite."""
+"""Double Merge and Halting Car: synthetic multi-agent driving scenarios on carlo_lite.
+
+Plain scenario classes (`DoubleMerge`, `HaltingCar`, registered in `SCENARIOS`) draw randomised
+episodes from a seed and drive every car with an expert policy; `rollout` records one episode as
+numpy arrays. The PettingZoo environments are the submodules `double_merge_v0` and
+`halting_car_v0` (imported on demand: `from scenarios import double_merge_v0`).
+"""
+
+from scenarios.base import ROLE_NAMES, Scenario, ScenarioConfig, ScenarioPlan
+from scenarios.double_merge import DoubleMerge, DoubleMergeConfig, DoubleMergePlan
+from scenarios.halting_car import HaltingCar, HaltingCarConfig, HaltingCarPlan
+from scenarios.rollout import Episode, advance, rollout
+
+SCENARIOS: dict[str, type[Scenario]] = {
+    DoubleMerge.name: DoubleMerge,
+    HaltingCar.name: HaltingCar,
+}
+
+__all__ = [
+    "ROLE_NAMES",
+    "SCENARIOS",
+    "DoubleMerge",
+    "DoubleMergeConfig",
+    "DoubleMergePlan",
+    "Episode",
+    "HaltingCar",
+    "HaltingCarConfig",
+    "HaltingCarPlan",
+    "Scenario",
+    "ScenarioConfig",
+    "ScenarioPlan",
+    "advance",
+    "rollout",
+]
