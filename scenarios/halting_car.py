@@ -14,6 +14,9 @@ Expert:
 - the random draws do not depend on the case: the same seed gives the same initial scene in
   both cases.
 
+Either case can be the frequent (major) one; `default_major_case` is "stop", the first of
+`case_names` (as "major" is for Double Merge).
+
 Labels: the follower attends to the leader at every step; the leader and the distractors attend
 to nobody (-1). Interaction period: the leader is braking or standing still (never in `go`).
 
@@ -100,7 +103,7 @@ class HaltingCar(Scenario):
 
     name = "halting_car"
     case_names = ("stop", "go")
-    default_major_case = "go"
+    default_major_case = "stop"
     config_class = HaltingCarConfig
 
     def sample_plan(self, rng: np.random.Generator, case: str) -> HaltingCarPlan:

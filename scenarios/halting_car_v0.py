@@ -1,0 +1,113 @@
+"""Halting Car as a PettingZoo environment: `parallel_env()`, `env()` (AEC) and `raw_env`."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pettingzoo.utils.conversions import parallel_to_aec
+from pettingzoo.utils.env import AECEnv
+
+from scenarios.env import ScenarioParallelEnv
+from scenarios.halting_car import HaltingCar
+
+
+class HaltingCarEnv(ScenarioParallelEnv):
+    """A follower keeps a safe gap behind a leader that may brake to a stop; 20 distractors.
+
+    ## Description
+    The brown leader (`car_1`) and the green follower (`car_0`, behind it) share an inner lane
+    (1 or 2, at random). Case `stop`: the leader brakes at a random moment (3.6 to 4.8 s) with
+    a random deceleration (3 to 6 m/s^2) to a full stop, stands 1 to 2 s, then accelerates
+    (2 to 3 m/s^2) back to its cruising speed. Case `go`: it keeps its speed. The follower's
+    expert is the Intelligent Driver Model towards the leader (random time headway 1.0 to 1.6 s,
+    desired speed 1.1 to 1.3 x the leader's cruise). `car_2` ... `car_21` are distractors
+    driving straight at constant speed on lanes 0 and 3. All randomness comes from the reset
+    seed; the ranges are the fields of `scenarios.HaltingCarConfig`.
+
+    ## Action Space
+    `Box([-0.5, -8.0], [0.5, 4.0], (2,), float32)` per agent: steering angle [rad] (positive
+    turns left) and acceleration [m/s^2]. An action is held for one env step = 3 simulation
+    steps of 0.1 s (0.3 s). Speeds stay in [0, 40] m/s.
+    `env.unwrapped.expert_actions()` gives the expert's action for every live agent, so you can
+    drive some cars yourself and let the expert drive the rest.
+
+    ## Observation Space
+    `Box(float32, (109,))` per agent: its own state, then for each other car in agent order
+    (`car_0`, `car_1`, ..., skipping itself) a presence flag and its state relative to the ego
+    car. Removed cars have presence 0 and zeros. Values are clipped to the bounds.
+
+    | Index           | Observation                                   | Min    | Max   |
+    |-----------------|-----------------------------------------------|--------|-------|
+    | 0               | ego x along the road [m]                      | 0      | 600   |
+    | 1               | ego y across the road [m] (lane i: 3.5 i..)   | 0      | 14    |
+    | 2               | ego heading [rad] (0 = along the road)        | -pi    | pi    |
+    | 3               | ego speed [m/s]                               | 0      | 40    |
+    | 4 + 5k          | other car k present (1) or removed (0)        | 0      | 1     |
+    | 5 + 5k          | other car k: x - ego x [m]                    | -600   | 600   |
+    | 6 + 5k          | other car k: y - ego y [m]                    | -14    | 14    |
+    | 7 + 5k          | other car k: heading - ego heading [rad]      | -pi    | pi    |
+    | 8 + 5k          | other car k: speed - ego speed [m/s]          | -40    | 40    |
+
+    with k = 0 ... 20 indexing the other 21 cars.
+
+    ## Rewards
+    Per agent and step: `speed_reward_weight * v cos(heading) / 40` (forward progress, at most
+    0.1 by default), plus `collision_reward` (-1) if it collided and `off_road_reward` (-1) if
+    any part of it left the road during the step.
+
+    ## Starting State
+    Leader at x in [70, 90] m at its cruising speed (8 to 12 m/s); follower at the same speed,
+    0.8 to 1.2 times the IDM equilibrium gap behind it; both on the lane centre, heading 0.
+    Distractors: 10 per outer lane, 9 to 20 m apart, the rearmost at x in [0, 20] m.
+
+    ## Episode End
+    - Termination (per agent): it collided with another car or left the road (checked every
+      0.1 s). The car is then removed from the world and from `agents` for good.
+    - Truncation (all agents): after `max_cycles` steps (default 60 = 18 s, the scenario's
+      episode length; suggested split for prediction: 12 observed + 48 predicted steps, so that
+      the leader's stop falls in the predicted part).
+
+    ## Infos
+    Each agent's info: `role` ("main_green", "main_brown" or "distractor"), `attention` (index of
+    the car it reacts to, -1 for none: the follower attends to the leader), `interaction` (the
+    leader is braking or standing still), `collided`, `off_road`.
+
+    ## Arguments
+    | Parameter             | Type               | Default   | Description                     |
+    |-----------------------|--------------------|-----------|---------------------------------|
+    | `case`                | str                | "stop"    | case when reset gets no option  |
+    | `max_cycles`          | int                | 60        | steps before truncation         |
+    | `render_mode`         | str                | None      | "rgb_array" or "human"          |
+    | `config`              | HaltingCarConfig   | default   | timings, ranges, road, limits   |
+    | `speed_reward_weight` | float              | 0.1       | weight of the progress reward   |
+    | `collision_reward`    | float              | -1.0      | reward on collision             |
+    | `off_road_reward`     | float              | -1.0      | reward on leaving the road      |
+
+    `reset(seed=..., options={"case": "go"})` picks the case of one episode. With a seed,
+    stepping every agent with `expert_actions()` reproduces `scenarios.rollout(HaltingCar(),
+    seed, case)` exactly; without one, `env.unwrapped.episode_seed` says which seed was used.
+
+    ## Version History
+    - v0: first version.
+    """
+
+    scenario_class = HaltingCar
+    metadata = {
+        "name": "halting_car_v0",
+        "render_modes": ["human", "rgb_array"],
+        "render_fps": 10 / 3,
+        "is_parallelizable": True,
+    }
+
+
+raw_env = HaltingCarEnv  # the unwrapped parallel environment
+
+
+def parallel_env(**kwargs: Any) -> HaltingCarEnv:
+    """The Halting Car parallel environment (see `HaltingCarEnv` for the arguments)."""
+    return HaltingCarEnv(**kwargs)
+
+
+def env(**kwargs: Any) -> AECEnv:
+    """The Halting Car environment with the AEC API (agents act in turn, `parallel_to_aec`)."""
+    return parallel_to_aec(HaltingCarEnv(**kwargs))
