@@ -1,0 +1,395 @@
+"""Training loop: Adam on the paper's loss, validation ADE, checkpoints, exact resume.
+
+A run directory holds `config.json` (model, training and data description), `metrics.jsonl`
+(one JSON object per epoch), `last.pt` (everything needed to resume, written after every epoch)
+and `best.pt` (the weights with the lowest validation ADE of the main agents, fed-back means).
+
+Determinism: the seed fixes the initial weights (torch RNG), the batch order (the loader's own
+generator) and the rollout samples (torch RNG). `last.pt` stores the optimizer state, the epoch,
+the best validation score and the torch, numpy, python and loader RNG states, so a resumed run
+reproduces the uninterrupted one bit for bit (same thread count assumed).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from predictor import __version__
+from predictor.config import ModelConfig, TrainConfig, config_to_dict
+from predictor.data import Batch, TrajectoryDataset, make_loader
+from predictor.evaluation import (
+    CHECKPOINT_FORMAT,
+    CHECKPOINT_VERSION,
+    predict_model,
+    read_checkpoint,
+    score,
+)
+from predictor.losses import LossWeights, compute_loss
+from predictor.model import SmoothAttentionPredictor
+
+RUN_FILES = ("config.json", "metrics.jsonl", "last.pt", "best.pt")
+
+
+class RunError(ValueError):
+    """A run directory or data file cannot be used as asked; the message is one line."""
+
+
+def loss_weights(config: TrainConfig) -> LossWeights:
+    """The loss weights a training config asks for."""
+    return LossWeights(config.beta1, config.beta2, config.tau, config.sequence_loss)
+
+
+def train_step(
+    model: SmoothAttentionPredictor,
+    optimizer: torch.optim.Optimizer,
+    batch: Batch,
+    num_observed: int,
+    config: TrainConfig,
+) -> dict[str, float]:
+    """One optimiser step on a batch; returns the loss terms. Raises on a non-finite loss."""
+    model.train()
+    weights = loss_weights(config)
+    out = model(
+        batch.positions, batch.valid, num_observed, batch.attention, rollout=weights.sequence
+    )
+    loss, terms = compute_loss(out, batch.positions, batch.valid, num_observed, weights)
+    if not math.isfinite(terms["loss"]):
+        raise FloatingPointError(f"non-finite loss {terms}")
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    if config.grad_clip_norm > 0:
+        torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip_norm)
+    optimizer.step()
+    return terms
+
+
+def validation_scores(
+    model: SmoothAttentionPredictor, batch: Batch, num_observed: int, case_names: tuple[str, ...]
+) -> dict[str, float | None]:
+    """ADE/FDE [m] of the fed-back means for the main agents and all agents."""
+    result = score(predict_model(model, batch, num_observed), batch, num_observed, case_names)
+    main, every = result["main_agents"]["overall"], result["all_agents"]["overall"]
+    return {"ade_main": main["ade"], "fde_main": main["fde"],
+            "ade_all": every["ade"], "fde_all": every["fde"]}
+
+
+def selection_score(val: dict[str, float | None]) -> float | None:
+    """The number best.pt minimises: main-agent ADE (all-agent ADE if no main agent counts)."""
+    return val["ade_main"] if val["ade_main"] is not None else val["ade_all"]
+
+
+# --------------------------------------------------------------------------- random states
+def rng_state(loader_generator: torch.Generator) -> dict:
+    """torch, numpy, python and loader RNG states as weights-only-loadable plain types."""
+    np_state = np.random.get_state()
+    py_state = random.getstate()
+    return {
+        "torch": torch.get_rng_state(),
+        "loader": loader_generator.get_state(),
+        "numpy": {
+            "name": str(np_state[0]),
+            "keys": torch.from_numpy(np.asarray(np_state[1], dtype=np.int64)),
+            "pos": int(np_state[2]),
+            "has_gauss": int(np_state[3]),
+            "cached_gaussian": float(np_state[4]),
+        },
+        "python": [py_state[0], list(py_state[1]), py_state[2]],
+    }
+
+
+def set_rng_state(state: dict, loader_generator: torch.Generator) -> None:
+    """Restore what `rng_state` saved."""
+    torch.set_rng_state(state["torch"])
+    loader_generator.set_state(state["loader"])
+    numpy = state["numpy"]
+    np.random.set_state((numpy["name"], numpy["keys"].numpy().astype(np.uint32), numpy["pos"],
+                         numpy["has_gauss"], numpy["cached_gaussian"]))
+    version, internal, gauss = state["python"]
+    random.setstate((version, tuple(internal), gauss))
+
+
+def seed_everything(seed: int) -> None:
+    """Seed torch, numpy's and python's global generators."""
+    torch.manual_seed(seed)
+    np.random.seed(seed % 2**32)
+    random.seed(seed)
+
+
+# --------------------------------------------------------------------------- files
+def atomic_save(obj: object, path: Path) -> None:
+    """torch.save to a temporary file beside `path`, then rename."""
+    temp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        torch.save(obj, temp)
+        os.replace(temp, path)
+    finally:
+        temp.unlink(missing_ok=True)
+
+
+def atomic_write_text(text: str, path: Path) -> None:
+    """Write text to a temporary file beside `path`, then rename."""
+    temp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        temp.write_text(text)
+        os.replace(temp, path)
+    finally:
+        temp.unlink(missing_ok=True)
+
+
+def prepare_out_dir(out_dir: Path, resume: bool, overwrite: bool) -> None:
+    """Check the run directory: a fresh run needs it absent or empty (or --overwrite)."""
+    if resume and overwrite:
+        raise RunError("--resume and --overwrite exclude each other")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise RunError(f"{out_dir} exists and is not a directory")
+    if resume:
+        if not (out_dir / "last.pt").is_file():
+            raise RunError(f"nothing to resume: {out_dir / 'last.pt'} does not exist")
+        return
+    if out_dir.is_dir() and any(out_dir.iterdir()):
+        if not overwrite:
+            raise RunError(f"{out_dir} is not empty; pass --resume to continue the run there "
+                           "or --overwrite to start over")
+        for name in RUN_FILES + ("eval.json",):
+            (out_dir / name).unlink(missing_ok=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+
+def describe_data(path: str, dataset: TrajectoryDataset, val_count: int) -> dict:
+    """What a run records about its data file (also checked on resume)."""
+    meta = dataset.meta
+    return {
+        "path": os.path.abspath(path),
+        "scenario": meta.scenario,
+        "dt": float(meta.dt),
+        "num_observed": int(meta.num_observed),
+        "num_predicted": int(meta.num_predicted),
+        "case_names": list(meta.case_names),
+        "role_names": list(meta.role_names),
+        "train_count": len(dataset),
+        "val_count": val_count,
+        "num_agents": dataset.all().num_agents,
+    }
+
+
+# --------------------------------------------------------------------------- the loop
+@dataclass
+class RunState:
+    """Everything that changes while training."""
+
+    model: SmoothAttentionPredictor
+    optimizer: torch.optim.Optimizer
+    loader: torch.utils.data.DataLoader
+    epoch: int = 0  # completed epochs
+    best_score: float | None = None
+    best_epoch: int = 0
+    history_tail: dict = field(default_factory=dict)  # last epoch's record
+
+
+def checkpoint_dict(state: RunState, model_cfg: ModelConfig, train_cfg: TrainConfig,
+                    data: dict, full: bool) -> dict:
+    """Checkpoint contents (plain types and tensors only)."""
+    out = {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "package_version": __version__,
+        "model_state": state.model.state_dict(),
+        "model_config": config_to_dict(model_cfg),
+        "train_config": config_to_dict(train_cfg),
+        "data": data,
+        "epoch": state.epoch,
+        "best_score": state.best_score,
+        "best_epoch": state.best_epoch,
+    }
+    if full:
+        out["optimizer_state"] = state.optimizer.state_dict()
+        out["rng"] = rng_state(state.loader.generator)
+    return out
+
+
+def build_state(model_cfg: ModelConfig, train_cfg: TrainConfig, train_set: TrajectoryDataset
+                ) -> RunState:
+    """Seeded model, optimizer and loader of a fresh run."""
+    seed_everything(train_cfg.seed)
+    model = SmoothAttentionPredictor(model_cfg)
+    optimizer = torch.optim.Adam(model.parameters(), lr=train_cfg.lr)
+    loader = make_loader(train_set, train_cfg.batch_size, shuffle=True, seed=train_cfg.seed)
+    return RunState(model, optimizer, loader)
+
+
+def restore_state(state: RunState, checkpoint: dict) -> None:
+    """Load model, optimizer, counters and RNG states from a `last.pt` dict."""
+    state.model.load_state_dict(checkpoint["model_state"])
+    state.optimizer.load_state_dict(checkpoint["optimizer_state"])
+    state.epoch = int(checkpoint["epoch"])
+    state.best_score = checkpoint["best_score"]
+    state.best_epoch = int(checkpoint["best_epoch"])
+    set_rng_state(checkpoint["rng"], state.loader.generator)
+
+
+def run_epoch(state: RunState, num_observed: int, config: TrainConfig, bar: tqdm,
+              step_callback: Callable[[int], None] | None) -> dict[str, float]:
+    """One pass over the training loader; returns the mean of each loss term."""
+    sums: dict[str, float] = {}
+    steps = 0
+    first_step = state.epoch * len(state.loader)
+    for batch in state.loader:
+        if step_callback is not None:
+            step_callback(first_step + steps)
+        terms = train_step(state.model, state.optimizer, batch, num_observed, config)
+        for name, value in terms.items():
+            sums[name] = sums.get(name, 0.0) + value
+        steps += 1
+        bar.update(1)
+        bar.set_postfix(epoch=state.epoch + 1, loss=f"{terms['loss']:.3f}", refresh=False)
+    return {name: total / max(steps, 1) for name, total in sums.items()}
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What a finished `train` call reports."""
+
+    out_dir: Path
+    epochs: int  # completed epochs
+    best_epoch: int
+    best_score: float | None  # validation ADE [m] of best.pt (main agents)
+    final_loss: float | None  # mean training loss of the last epoch run now (None if none ran)
+    seconds: float  # wall time of this call
+
+    def summary(self, variant: str) -> str:
+        """One-line summary."""
+        best = "n/a" if self.best_score is None else f"{self.best_score:.3f} m"
+        loss = "n/a" if self.final_loss is None else f"{self.final_loss:.4f}"
+        return (f"trained {variant} for {self.epochs} epochs in {self.seconds:.1f} s; final loss "
+                f"{loss}; best val ADE (main agents) {best} at epoch {self.best_epoch}; "
+                f"run in {self.out_dir}")
+
+
+def stored_configs(out_dir: str | os.PathLike) -> tuple[ModelConfig, TrainConfig]:
+    """The configs of the run in `out_dir` (from last.pt)."""
+    from predictor.config import model_config_from_dict, train_config_from_dict
+
+    checkpoint = read_checkpoint(Path(out_dir) / "last.pt")
+    return (model_config_from_dict(checkpoint["model_config"]),
+            train_config_from_dict(checkpoint["train_config"]))
+
+
+RESUME_MAY_CHANGE = ("epochs", "threads", "eval_every")
+
+
+def _check_resume(checkpoint: dict, model_cfg: ModelConfig, train_cfg: TrainConfig,
+                  data: dict) -> None:
+    if checkpoint["model_config"] != config_to_dict(model_cfg):
+        raise RunError("--resume must use the run's stored model configuration")
+    stored, asked = checkpoint["train_config"], config_to_dict(train_cfg)
+    changed = [k for k in asked if k not in RESUME_MAY_CHANGE and stored.get(k) != asked[k]]
+    if changed:
+        raise RunError(f"--resume cannot change {', '.join(changed)} of the stored run")
+    keys = [k for k in data if k != "path"]
+    if any(checkpoint["data"].get(k) != data[k] for k in keys):
+        raise RunError(f"--resume needs the run's data file ({checkpoint['data']['path']})")
+
+
+def _load_splits(data_path: str | os.PathLike) -> tuple[TrajectoryDataset, Batch | None, dict]:
+    train_set = TrajectoryDataset(data_path, "train")
+    if len(train_set) == 0:
+        raise RunError(f"{data_path}: the train split is empty")
+    val_set = TrajectoryDataset(data_path, "val")
+    val_batch = val_set.all() if len(val_set) else None
+    return train_set, val_batch, describe_data(os.fspath(data_path), train_set, len(val_set))
+
+
+def _rewrite_metrics(path: Path, last_epoch: int) -> None:
+    """Keep only the metrics lines of epochs <= last_epoch (after an interruption)."""
+    if not path.exists():
+        return
+    lines = [line for line in path.read_text().splitlines() if line.strip()]
+    kept = [line for line in lines if json.loads(line)["epoch"] <= last_epoch]
+    atomic_write_text("".join(line + "\n" for line in kept), path)
+
+
+def train(
+    data_path: str | os.PathLike,
+    model_cfg: ModelConfig,
+    train_cfg: TrainConfig,
+    out_dir: str | os.PathLike,
+    resume: bool = False,
+    overwrite: bool = False,
+    progress: bool = True,
+    step_callback: Callable[[int], None] | None = None,
+) -> TrainResult:
+    """Train (or resume) a run in `out_dir`; see the module docstring for the files written.
+
+    Raises RunError for an unusable run directory, FormatError for a bad data file.
+    `step_callback(global_step)` is called before every optimiser step (for tests).
+    """
+    started = time.perf_counter()
+    out = Path(out_dir)
+    prepare_out_dir(out, resume, overwrite)
+    torch.set_num_threads(train_cfg.threads)
+    train_set, val_batch, data = _load_splits(data_path)
+    state = build_state(model_cfg, train_cfg, train_set)
+    if resume:
+        checkpoint = read_checkpoint(out / "last.pt")
+        _check_resume(checkpoint, model_cfg, train_cfg, data)
+        restore_state(state, checkpoint)
+        _rewrite_metrics(out / "metrics.jsonl", state.epoch)
+    run_config = {"model": config_to_dict(model_cfg), "train": config_to_dict(train_cfg),
+                  "data": data, "package_version": __version__}
+    atomic_write_text(json.dumps(run_config, indent=2) + "\n", out / "config.json")
+    num_observed = data["num_observed"]
+    per_epoch = len(state.loader)
+    bar = tqdm(total=train_cfg.epochs * per_epoch, initial=min(state.epoch, train_cfg.epochs)
+               * per_epoch, desc=f"train {train_cfg.variant}", unit="step", disable=not progress)
+    final_loss = None
+    with bar:
+        for epoch in range(state.epoch + 1, train_cfg.epochs + 1):
+            record = _one_epoch(state, epoch, num_observed, train_cfg, val_batch, data, bar,
+                                step_callback)
+            final_loss = record["train"]["loss"]
+            with open(out / "metrics.jsonl", "a") as stream:
+                stream.write(json.dumps(record) + "\n")
+            if record["best"]:
+                atomic_save(checkpoint_dict(state, model_cfg, train_cfg, data, False),
+                            out / "best.pt")
+            atomic_save(checkpoint_dict(state, model_cfg, train_cfg, data, True), out / "last.pt")
+    if not (out / "last.pt").exists():  # zero epochs: keep the initial weights
+        atomic_save(checkpoint_dict(state, model_cfg, train_cfg, data, True), out / "last.pt")
+    if not (out / "best.pt").exists():
+        atomic_save(checkpoint_dict(state, model_cfg, train_cfg, data, False), out / "best.pt")
+    return TrainResult(out, state.epoch, state.best_epoch, state.best_score, final_loss,
+                       time.perf_counter() - started)
+
+
+def _one_epoch(state: RunState, epoch: int, num_observed: int, config: TrainConfig,
+               val_batch: Batch | None, data: dict, bar: tqdm,
+               step_callback: Callable[[int], None] | None) -> dict:
+    """Train one epoch, validate if due, update the best score; returns the metrics record."""
+    started = time.perf_counter()
+    terms = run_epoch(state, num_observed, config, bar, step_callback)
+    state.epoch = epoch
+    val, best = None, False
+    due = epoch % config.eval_every == 0 or epoch == config.epochs
+    if val_batch is not None and due:
+        val = validation_scores(state.model, val_batch, num_observed,
+                                tuple(data["case_names"]))
+        current = selection_score(val)
+        if current is not None and (state.best_score is None or current < state.best_score):
+            state.best_score, state.best_epoch, best = current, epoch, True
+        bar.set_postfix(epoch=epoch, loss=f"{terms['loss']:.3f}",
+                        val_ade=f"{current:.3f}" if current is not None else "n/a")
+    elif val_batch is None:  # nothing to select on: best.pt follows the last epoch
+        state.best_epoch, best = epoch, True
+    return {"epoch": epoch, "train": terms, "val": val, "best": best,
+            "seconds": round(time.perf_counter() - started, 3)}
