@@ -4,9 +4,13 @@ terminate early), equality with `rollout`, pickling, random actions, input error
 
 from __future__ import annotations
 
+import os
 import pickle
+import subprocess
+import sys
 import types
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -344,3 +348,60 @@ def test_spaces_and_rendering(module) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         env.close()
+
+
+# --- tools/play.py (subprocess smoke runs) ------------------------------------------------------
+PLAY = Path(__file__).resolve().parents[1] / "tools" / "play.py"
+
+
+def run_play(*args: str, **env: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(PLAY), *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "OMP_NUM_THREADS": "1", **env},
+    )
+
+
+def test_play_records_a_gif_and_refuses_to_overwrite_it(tmp_path: Path) -> None:
+    import imageio.v3 as iio
+
+    video = tmp_path / "stop.gif"
+    done = run_play("--scenario", "halting_car", "--case", "stop", "--record", str(video))
+    assert done.returncode == 0, done.stderr
+    assert f"wrote {video} (61 frames)" in done.stdout
+    frames = iio.imread(video)
+    assert frames.shape == (61, 200, 800, 3)
+    again = run_play("--scenario", "halting_car", "--record", str(video))
+    assert again.returncode == 2 and "--overwrite" in again.stderr
+    assert len(again.stderr.strip().splitlines()) == 1
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["stop.gif"]  # no temp files
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--scenario", "double_merge", "--case", "stop"],
+        ["--scenario", "nowhere"],
+        ["--scenario", "double_merge", "--control", "car_0"],
+        ["--scenario", "double_merge", "--render", "human", "--control", "car_99"],
+        ["--scenario", "double_merge", "--record", "movie.avi"],
+        ["--scenario", "double_merge", "--seed", "-1"],
+    ],
+)
+def test_play_bad_arguments_give_one_line_and_exit_2(args: list[str]) -> None:
+    done = run_play(*args)
+    assert done.returncode == 2
+    assert len(done.stderr.strip().splitlines()) == 1 and done.stderr.startswith("error:")
+    assert "Traceback" not in done.stderr
+
+
+def test_play_human_window_with_keyboard_control_runs_headless() -> None:
+    pytest.importorskip("pygame")
+    done = run_play(
+        "--scenario", "double_merge", "--case", "minor", "--render", "human",
+        "--control", "car_1", "--fps", "1000", SDL_VIDEODRIVER="dummy", SDL_AUDIODRIVER="dummy",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("double_merge minor seed 0: 60 steps")

@@ -1,0 +1,161 @@
+"""Play one episode of a scenario: watch it, record it, or drive one car yourself.
+
+    python tools/play.py --scenario double_merge --case minor --render human
+    python tools/play.py --scenario halting_car --case stop --record stop.gif
+    python tools/play.py --scenario double_merge --render human --control car_0
+
+The expert drives every car except the one given to --control, which you steer with the arrow
+keys (left/right: steer, up: accelerate, down: brake; Esc or closing the window ends the
+episode). --record writes the frames as a .gif (or .mp4 when imageio-ffmpeg is installed),
+headless, atomically, refusing to replace an existing file without --overwrite. The same
+arguments give the same episode.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from _cli import ArgumentParser, atomic_output, check_output, fail
+from scenarios import SCENARIOS
+
+STEER_RAD = 0.12  # steering while an arrow key is held
+ACCEL_MPS2, BRAKE_MPS2 = 2.0, -5.0
+VIDEO_SUFFIXES = (".gif", ".mp4")
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenario", required=True, choices=sorted(SCENARIOS))
+    parser.add_argument("--case", help="case to play (default: the scenario's major case)")
+    parser.add_argument("--seed", type=int, default=0, help="episode seed (default 0)")
+    parser.add_argument("--render", choices=("human", "none"), default="none")
+    parser.add_argument("--record", metavar="FILE", help="write a video (.gif or .mp4)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing video")
+    parser.add_argument("--control", metavar="AGENT", help="drive this car (e.g. car_0)")
+    parser.add_argument(
+        "--fps", type=float, help="frame rate of the window and the video (default: real time)"
+    )
+    return parser.parse_args(argv)
+
+
+def check_args(args: argparse.Namespace) -> tuple[str, Path | None]:
+    """Validate what argparse cannot (one-line error, exit 2); returns (case, video path)."""
+    scenario = SCENARIOS[args.scenario]
+    case = args.case or scenario.default_major_case
+    if case not in scenario.case_names:
+        fail(f"--case must be one of {', '.join(scenario.case_names)} for {args.scenario}")
+    if args.seed < 0:
+        fail(f"--seed must be non-negative, got {args.seed}")
+    if args.fps is not None and not args.fps > 0:
+        fail(f"--fps must be positive, got {args.fps}")
+    if args.control is not None:
+        agents = [f"car_{i}" for i in range(scenario.config_class().num_cars)]
+        if args.control not in agents:
+            fail(f"--control must name an agent car_0 ... {agents[-1]}, got {args.control!r}")
+        if args.render != "human":
+            fail("--control needs --render human (the keyboard is read from the window)")
+    video = None
+    if args.record is not None:
+        video = check_output(args.record, args.overwrite)
+        if video.suffix.lower() not in VIDEO_SUFFIXES:
+            fail(f"--record must end in {' or '.join(VIDEO_SUFFIXES)}, got {video.name}")
+        if video.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
+            fail("writing .mp4 needs imageio-ffmpeg (pip install imageio-ffmpeg); use .gif")
+    return case, video
+
+
+class Keyboard:
+    """Arrow keys -> [steering, acceleration]; also reports when the user wants to stop."""
+
+    def __init__(self) -> None:
+        self.pygame = importlib.import_module("pygame")
+        self.quit = False
+
+    def action(self) -> np.ndarray:
+        pygame = self.pygame
+        for event in pygame.event.get((pygame.QUIT, pygame.KEYDOWN)):
+            if event.type == pygame.QUIT or event.key == pygame.K_ESCAPE:
+                self.quit = True
+        keys = pygame.key.get_pressed()
+        steer = STEER_RAD * (keys[pygame.K_LEFT] - keys[pygame.K_RIGHT])
+        accel = ACCEL_MPS2 if keys[pygame.K_UP] else BRAKE_MPS2 if keys[pygame.K_DOWN] else 0.0
+        return np.array([steer, accel], dtype=np.float32)
+
+
+def play(args: argparse.Namespace, case: str) -> tuple[dict, list[np.ndarray]]:
+    """Run the episode; returns (summary counts, frames recorded for the video)."""
+    module = importlib.import_module(f"scenarios.{args.scenario}_v0")
+    want_frames = args.render == "human" or args.record is not None
+    env = module.parallel_env(render_mode="rgb_array" if want_frames else None)
+    env.reset(seed=args.seed, options={"case": case})
+    viewer = keyboard = None
+    if args.render == "human":
+        from carlo_lite import HumanViewer
+
+        viewer = HumanViewer(
+            f"{args.scenario} ({case})", fps=args.fps or env.metadata["render_fps"]
+        )
+    frames = [env.render()] if want_frames else []
+    removed, steps = set(), 0
+    try:
+        if viewer is not None:
+            viewer.show(frames[-1])
+            keyboard = Keyboard() if args.control else None
+        with tqdm(total=env.max_cycles, desc=f"play {args.scenario}", unit="step") as bar:
+            while env.agents and not (keyboard is not None and keyboard.quit):
+                actions = env.unwrapped.expert_actions()
+                if keyboard is not None and args.control in actions:
+                    actions[args.control] = keyboard.action()
+                _, _, terminations, _, _ = env.step(actions)
+                removed |= {agent for agent, done in terminations.items() if done}
+                steps += 1
+                bar.update()
+                if want_frames:
+                    frames.append(env.render())
+                if viewer is not None:
+                    viewer.show(frames[-1])
+    finally:
+        if viewer is not None:
+            viewer.close()
+        env.close()
+    summary = {"steps": steps, "removed": sorted(removed), "cars": len(env.possible_agents)}
+    return summary, frames if args.record is not None else []
+
+
+def write_video(path: Path, frames: list[np.ndarray], fps: float) -> None:
+    import imageio.v3 as iio
+
+    with atomic_output(path) as temp:
+        if path.suffix.lower() == ".gif":
+            iio.imwrite(temp, np.stack(frames), duration=1000.0 / fps, loop=0)
+        else:
+            iio.imwrite(temp, np.stack(frames), fps=fps, codec="libx264")
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    case, video = check_args(args)
+    try:
+        summary, frames = play(args, case)
+    except KeyboardInterrupt:
+        fail("interrupted; nothing was written", code=130)
+    message = (
+        f"{args.scenario} {case} seed {args.seed}: {summary['steps']} steps, "
+        f"{len(summary['removed'])} of {summary['cars']} cars removed"
+        + (f" ({', '.join(summary['removed'])})" if summary["removed"] else "")
+    )
+    if video is not None:
+        scenario_config = SCENARIOS[args.scenario]().config
+        write_video(video, frames, args.fps or 1.0 / scenario_config.recorded_dt)
+        message += f"; wrote {video} ({len(frames)} frames)"
+    print(message)
+
+
+if __name__ == "__main__":
+    main()
