@@ -130,10 +130,17 @@ def save_predictions(
     case_names: tuple[str, ...],
     role_names: tuple[str, ...],
 ) -> None:
-    """Write the predictions file read by the plotting tool (np.savez to `path`)."""
+    """Write the predictions file read by the plotting tool (np.savez to exactly `path`)."""
     roles = batch.roles if batch.roles is not None else torch.zeros(batch.valid.shape[::2])
+    with open(path, "wb") as stream:  # a file object: numpy adds no ".npz" suffix
+        _savez(stream, predictions, batch, roles, num_observed, dt, case_names, role_names)
+
+
+def _savez(stream, predictions: Predictions, batch: Batch, roles: torch.Tensor,
+           num_observed: int, dt: float, case_names: tuple[str, ...],
+           role_names: tuple[str, ...]) -> None:
     np.savez(
-        path,
+        stream,
         pred_mean=predictions.pred_mean.astype(np.float32),
         true_xy=batch.positions.numpy().astype(np.float32),
         valid=batch.valid.numpy().astype(bool),

@@ -1,0 +1,144 @@
+"""Evaluate a trained run (or the constant-velocity baseline) on a dataset split.
+
+Examples:
+    python tools/evaluate.py --run runs/ours_s0 --data data/double_merge.h5
+    python tools/evaluate.py --baseline const_vel --data data/double_merge.h5 --out cv.json
+
+Predicts every scene of the split (default test) from its observed steps, feeding back the mean
+of each predicted Gaussian, and reports ADE/FDE [m] per case and overall for the main agents
+(the headline: the first two agent slots) and for all agents, plus the attention accuracy
+against the oracle labels. Writes JSON (default RUN/eval.json) and, with --save-predictions,
+an .npz for tools/plot.py.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from _cli import ArgumentParser, atomic_output, check_output, fail, require_file
+from predictor.baselines import BASELINES
+from predictor.data import TrajectoryDataset
+from predictor.evaluation import (
+    CheckpointError,
+    load_model,
+    predict_const_vel,
+    predict_model,
+    save_predictions,
+    score,
+)
+from predictor.format import FormatError
+from predictor.metrics import headline
+
+
+def parse_args(argv: list[str] | None = None):
+    parser = ArgumentParser(prog="evaluate.py", description="Evaluate trajectory predictions.")
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--run", help="run directory written by tools/train.py")
+    source.add_argument("--baseline", choices=BASELINES, help="a baseline without training")
+    parser.add_argument("--data", required=True, help="dataset file (HDF5, schema v1)")
+    parser.add_argument("--split", default="test", choices=("train", "val", "test"),
+                        help="split to evaluate (default test)")
+    parser.add_argument("--checkpoint", default="best", choices=("best", "last"),
+                        help="which checkpoint of --run (default best)")
+    parser.add_argument("--out", default=None,
+                        help="JSON output (default RUN/eval.json; none for a baseline)")
+    parser.add_argument("--save-predictions", default=None, metavar="FILE.npz",
+                        help="also write the predictions for tools/plot.py")
+    parser.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    parser.add_argument("--batch-size", type=int, default=32, help="scenes per forward pass")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    return parser.parse_args(argv)
+
+
+def check_args(args) -> tuple[Path | None, Path | None]:
+    """Validate paths and numbers (exit 2 otherwise); returns (json_out, npz_out)."""
+    require_file(args.data, "data file")
+    if args.batch_size < 1 or args.threads < 1:
+        fail("--batch-size and --threads must be at least 1")
+    out = args.out
+    if args.run is not None:
+        if not Path(args.run).is_dir():
+            fail(f"run directory {args.run} does not exist")
+        require_file(Path(args.run) / f"{args.checkpoint}.pt", "checkpoint")
+        out = out or str(Path(args.run) / "eval.json")
+    json_out = check_output(out, args.overwrite) if out else None
+    npz_out = check_output(args.save_predictions, args.overwrite) if args.save_predictions else None
+    if json_out is not None and npz_out is not None and json_out.resolve() == npz_out.resolve():
+        fail("--out and --save-predictions name the same file")
+    return json_out, npz_out
+
+
+def format_table(result: dict, case_names: tuple[str, ...]) -> str:
+    """Plain-text table: one row per case and overall."""
+    header = f"{'case':<12}{'ADE main':>10}{'FDE main':>10}{'ADE all':>10}{'FDE all':>10}" \
+             f"{'attn acc':>10}{'scenes':>8}"
+    rows = [header, "-" * len(header)]
+
+    def cell(value: float | None) -> str:
+        return f"{'n/a':>10}" if value is None else f"{value:>10.3f}"
+
+    for name in (*case_names, "overall"):
+        main, every = _row(result["main_agents"], name), _row(result["all_agents"], name)
+        accuracy = _row(result["attention_accuracy"], name)["accuracy"]
+        rows.append(f"{name:<12}{cell(main['ade'])}{cell(main['fde'])}{cell(every['ade'])}"
+                    f"{cell(every['fde'])}{cell(accuracy)}{every['scenes']:>8}")
+    return "\n".join(rows)
+
+
+def _row(group: dict, name: str) -> dict:
+    return group["overall"] if name == "overall" else group["cases"][name]
+
+
+def evaluate(args, dataset: TrajectoryDataset) -> tuple[dict, object]:
+    """Predict and score; returns (JSON-ready result, predictions)."""
+    meta, batch = dataset.meta, dataset.all()
+    info: dict = {"data": str(Path(args.data).resolve()), "split": args.split,
+                  "scenes": batch.batch_size, "num_observed": meta.num_observed,
+                  "num_predicted": meta.num_predicted, "dt": meta.dt,
+                  "headline": "main_agents"}
+    if args.baseline:
+        predictions = predict_const_vel(batch, meta.num_observed)
+        info.update(predictor=args.baseline)
+    else:
+        model, checkpoint = load_model(Path(args.run) / f"{args.checkpoint}.pt")
+        predictions = predict_model(model, batch, meta.num_observed, args.batch_size)
+        info.update(predictor=checkpoint["train_config"]["variant"], run=str(args.run),
+                    checkpoint=f"{args.checkpoint}.pt", epoch=checkpoint["epoch"],
+                    train_data=checkpoint["data"]["path"])
+    result = {**info, **score(predictions, batch, meta.num_observed, meta.case_names)}
+    return result, predictions
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    json_out, npz_out = check_args(args)
+    torch.set_num_threads(args.threads)
+    started = time.perf_counter()
+    try:
+        dataset = TrajectoryDataset(args.data, args.split)
+        if len(dataset) == 0:
+            fail(f"{args.data}: the {args.split} split is empty")
+        result, predictions = evaluate(args, dataset)
+    except (CheckpointError, FormatError, ValueError, OSError) as err:
+        fail(str(err))
+    meta = dataset.meta
+    print(format_table(result, meta.case_names))
+    if json_out is not None:
+        with atomic_output(json_out) as temp:
+            temp.write_text(json.dumps(result, indent=2) + "\n")
+    if npz_out is not None:
+        with atomic_output(npz_out) as temp:
+            save_predictions(temp, predictions, dataset.all(), meta.num_observed, meta.dt,
+                             meta.case_names, meta.role_names)
+    written = ", ".join(str(p) for p in (json_out, npz_out) if p is not None) or "nothing written"
+    print(f"{result['predictor']} on {result['scenes']} {args.split} scenes in "
+          f"{time.perf_counter() - started:.1f} s: {headline(result)} ({written})")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
