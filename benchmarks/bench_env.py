@@ -13,9 +13,13 @@ import argparse
 import importlib
 import json
 import statistics
+import sys
 import time
+from pathlib import Path
 
-from scenarios import SCENARIOS, rollout
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a plain checkout too
+
+from scenarios import SCENARIOS, rollout  # noqa: E402
 
 
 def time_env(scenario_name: str, episodes: int, seed: int) -> tuple[float, float]:

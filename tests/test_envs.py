@@ -280,6 +280,23 @@ def test_driving_one_car_while_the_expert_drives_the_rest() -> None:
     assert abs(env.world.xy[1, 1] - env.world.xy[0, 1]) < 0.1
 
 
+@pytest.mark.parametrize("module", MODULES)
+def test_aec_env_drives_with_the_expert_through_unwrapped(module) -> None:
+    env = module.env()
+    env.reset(seed=1)
+    steps = 0
+    for agent in env.agent_iter():
+        _, _, terminated, truncated, _ = env.last()
+        if terminated or truncated:
+            action = None
+        else:
+            action = env.unwrapped.expert_actions()[agent]
+        env.step(action)
+        steps += 1
+    assert steps == 22 * (60 + 1)  # 60 cycles, then one last turn each to be removed
+    assert env.unwrapped.world.active.all()  # nobody crashed
+
+
 def test_infos_carry_roles_labels_and_interaction() -> None:
     env = halting_car_v0.parallel_env()
     history = run_episode(env, 0, "stop", expert)

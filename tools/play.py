@@ -118,6 +118,8 @@ def play(args: argparse.Namespace, case: str) -> tuple[dict, list[np.ndarray]]:
                 bar.update()
                 if want_frames:
                     frames.append(env.render())
+                    if args.record is None:
+                        del frames[:-1]  # only the window needs it: keep the latest frame
                 if viewer is not None:
                     viewer.show(frames[-1])
     finally:
