@@ -43,16 +43,14 @@ def arc_length(
     The speed is held in [0, max_speed]: a braking car stops and stays stopped, an accelerating
     car cruises once it reaches `max_speed`.
     """
-    # Time until the speed reaches a limit (0 or max_speed); dt when it does not within the step.
-    speeding_up = accel > 0
-    slowing_down = accel < 0
-    headroom = np.where(speeding_up, max_speed - speed, speed)  # speed change left before a limit
-    rate = np.abs(accel)
-    reaches_limit = (speeding_up | slowing_down) & (headroom < rate * dt)
-    ramp_time = np.full_like(speed, dt)
-    ramp_time[reaches_limit] = headroom[reaches_limit] / rate[reaches_limit]
-    final_speed = np.clip(speed + accel * dt, 0.0, max_speed)
-    distance = speed * ramp_time + 0.5 * accel * ramp_time**2 + final_speed * (dt - ramp_time)
+    free_speed = speed + accel * dt  # final speed if no limit is reached
+    final_speed = np.clip(free_speed, 0.0, max_speed)
+    distance = 0.5 * dt * (speed + free_speed)  # exact while no limit is reached
+    limited = final_speed != free_speed
+    if limited.any():  # ramp to the limit, then hold it for the rest of the step
+        v0, a, v1 = speed[limited], accel[limited], final_speed[limited]
+        ramp_time = (v1 - v0) / a
+        distance[limited] = 0.5 * ramp_time * (v0 + v1) + v1 * (dt - ramp_time)
     return distance, final_speed
 
 
@@ -78,8 +76,10 @@ def bicycle_step(
     curvature = np.tan(controls[:, 0]) / wheelbase  # (N,) [1/m]
     turn = curvature * distance  # (N,) heading change [rad]
     # Chord of the arc: length distance * sin(turn/2)/(turn/2), direction heading + turn/2.
-    chord = distance * np.sinc(turn / (2.0 * np.pi))
-    mid_heading = heading + 0.5 * turn
+    half_turn = 0.5 * turn
+    shrink = np.divide(np.sin(half_turn), half_turn, out=np.ones_like(turn), where=turn != 0.0)
+    chord = distance * shrink
+    mid_heading = heading + half_turn
     new_xy = np.empty_like(xy)
     new_xy[:, 0] = xy[:, 0] + chord * np.cos(mid_heading)
     new_xy[:, 1] = xy[:, 1] + chord * np.sin(mid_heading)

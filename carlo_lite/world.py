@@ -180,14 +180,21 @@ class World:
 
     def collision_pairs(self) -> np.ndarray:
         """Pairs (K, 2), i < j, of active cars whose bodies overlap."""
-        low, high = self.bounding_boxes()
-        return self._checker.collision_pairs(low, high, self._xy, self._heading, self.active)
+        return self._collision_pairs(*self.bounding_boxes())
 
     def collisions(self) -> np.ndarray:
         """(N,) bool: the car overlaps at least one other active car."""
-        hit = np.zeros(self.num_cars, dtype=bool)
-        hit[self.collision_pairs().ravel()] = True
-        return hit
+        return self._collisions(*self.bounding_boxes())
+
+    def off_road(self) -> np.ndarray:
+        """(N,) bool: some part of an active car is outside the road edges."""
+        return self._off_road(*self.bounding_boxes())
+
+    def incidents(self) -> tuple[np.ndarray, np.ndarray]:
+        """`(collisions(), off_road())` from one bounding-box computation: the cheapest way to
+        check every step."""
+        low, high = self.bounding_boxes()
+        return self._collisions(low, high), self._off_road(low, high)
 
     def bounding_boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds (low (N, 2), high (N, 2)) [m] of the car bodies."""
@@ -197,9 +204,24 @@ class World:
         half[:, 1] = 0.5 * (self.length_m * sin + self.width_m * cos)
         return self._xy - half, self._xy + half
 
-    def off_road(self) -> np.ndarray:
-        """(N,) bool: some part of an active car is outside the road edges."""
-        low, high = self.bounding_boxes()
+    def _collision_pairs(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+        return self._checker.collision_pairs(low, high, self._xy, self._heading, self.active)
+
+    def _collisions(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+        hit = np.zeros(self.num_cars, dtype=bool)
+        hit[self._collision_pairs(low, high).ravel()] = True
+        return hit
+
+    def _off_road(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+        d_min, d_max = self.road.lateral_bounds
+        x = self._xy[:, 0]
+        if (
+            low[:, 1].min() > d_min
+            and high[:, 1].max() < d_max
+            and x.min() >= 0.0
+            and x.max() <= self.road.length_m
+        ):  # every box strictly between the (straight) edges: nothing can be off the road
+            return np.zeros(self.num_cars, dtype=bool)
         touching = self._checker.edge_contacts(low, high, self._xy, self._heading, self.active)
         lane = self.road.lane_index(self._xy)
         return (touching | (lane < 0)) & self.active

@@ -37,40 +37,22 @@ class Episode:
     scenario: str
 
 
-def _may_leave_road(world: World) -> bool:
-    """Conservative screen: False when every car's centre is within the road's length and its
-    bounding box strictly between the road edges, so that `world.off_road()` (edge contact or
-    centre off the road) must be all False and can be skipped."""
-    low, high = world.bounding_boxes()  # (N, 2) each
-    x = world.xy[:, 0]
-    road = world.road
-    return bool(
-        low[:, 1].min() <= 0.0
-        or high[:, 1].max() >= road.width_m
-        or x.min() < 0.0
-        or x.max() > road.length_m
-    )
-
-
 def advance(
     world: World, controls: np.ndarray, sub_steps: int, remove_crashed: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """Step `world` `sub_steps` times under held `controls` (N, 2), checking every step.
 
-    Returns per-car flags (N,) bool: collided, off_road during these steps (exactly
-    `world.collisions()` and `world.off_road()`; the latter is skipped when a bounding-box
-    screen rules it out). With `remove_crashed`, a car is deactivated (frozen, no longer
+    Returns per-car flags (N,) bool: collided, off_road during these steps (`world.incidents()`
+    after every step). With `remove_crashed`, a car is deactivated (frozen, no longer
     colliding) as soon as it collides or leaves the road.
     """
     collided = np.zeros(world.num_cars, dtype=bool)
     off_road = np.zeros(world.num_cars, dtype=bool)
     for _ in range(sub_steps):
         world.step(controls)
-        pairs = world.collision_pairs()  # (K, 2); usually empty
-        if len(pairs):
-            collided[pairs.ravel()] = True
-        if _may_leave_road(world):
-            off_road |= world.off_road()
+        hit, left = world.incidents()
+        collided |= hit
+        off_road |= left
         if remove_crashed and (collided.any() or off_road.any()):
             world.deactivate(np.nonzero((collided | off_road) & world.active)[0])
     return collided, off_road
