@@ -14,6 +14,7 @@ import json
 import math
 import os
 import platform
+import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -76,7 +77,9 @@ def welch_test(a: list[float], b: list[float]) -> dict:
     """Welch's two-sided t-test of a against b: {"t", "p"} (None where undefined)."""
     if len(a) < 2 or len(b) < 2:
         return {"t": None, "p": None}
-    result = stats.ttest_ind(a, b, equal_var=False)
+    with warnings.catch_warnings():  # identical samples: scipy warns and returns NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        result = stats.ttest_ind(a, b, equal_var=False)
     t, p = float(result.statistic), float(result.pvalue)
     return {"t": t if math.isfinite(t) else None, "p": p if math.isfinite(p) else None}
 
