@@ -3,8 +3,10 @@ cache) in subprocesses, usage errors, and the statistics on hand-made numbers.""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
+import re
 import subprocess
 import sys
 import time
@@ -47,7 +49,7 @@ def quick(tmp_path_factory) -> dict:
     assert first.returncode == 0, first.stderr[-2000:]
     markdown_first = results.read_text()
     before = eval_files(cache)
-    redone = next(p for p in before if p.parent.name == f"seed{REDONE[1]}_ep1"
+    redone = next(p for p in before if p.parent.name.startswith(f"seed{REDONE[1]}_ep1_")
                   and p.parent.parent.name == REDONE[0])
     redone_before = json.loads(redone.read_text())
     redone.unlink()
@@ -195,8 +197,28 @@ def test_jobs_cover_every_variant_and_seed(tmp_path):
     jobs = reproduce.setting_jobs(protocol, setting, tmp_path)
     assert len(jobs) == 5 * 3 + 1
     assert {(j.variant, j.seed) for j in jobs if j.save_scenes} == {("ours", 0), ("s_attn", 0)}
-    assert all(j.data_path.endswith("halting_car_go-major_15+50_test50_seed0.h5") for j in jobs)
-    assert jobs[0].run_dir.endswith("ours/seed0_ep7") and jobs[-1].run_dir.endswith("const_vel")
+    data = Path(jobs[0].data_path)
+    assert data.parent == tmp_path / "data"
+    assert re.fullmatch(r"halting_car_go-major_15\+50_test50_seed0_[0-9a-f]{8}\.h5", data.name)
+    assert all(j.data_path == jobs[0].data_path for j in jobs)
+    assert re.fullmatch(r"seed0_ep7_[0-9a-f]{8}", Path(jobs[0].run_dir).name)
+    assert Path(jobs[0].run_dir).parent.name == "ours" and jobs[-1].run_dir.endswith("const_vel")
+    names = {Path(j.run_dir).name for j in jobs if j.variant == "s_attn"}
+    assert len(names) == 3
+
+
+def test_cache_keys_change_with_the_configs(tmp_path):
+    setting = reproduce.SETTING_BY_NAME["dm_r0.3"]
+    protocol = reproduce.Protocol((setting,), ("ours",), 1, 5)
+    spec = reproduce.data_spec(protocol, setting)
+    other = dataclasses.replace(spec, scenario_digest=reproduce.digest({"changed": 1}))
+    assert spec.stem != other.stem
+    def key(variant: str, seed: int, epochs: int) -> str:
+        return reproduce.run_dir(tmp_path, spec, variant, seed, epochs).name.split("_")[-1]
+
+    keys = {key("ours", 0, 5), key("nonsmooth", 0, 5), key("ours", 1, 5), key("ours", 0, 6)}
+    assert len(keys) == 4 and key("ours", 0, 5) == key("ours", 0, 5)
+    assert reproduce.digest({"a": 1, "b": 2}) == reproduce.digest({"b": 2, "a": 1})
 
 
 def test_figure_scenes_pick_the_first_interacting_scene_per_case():

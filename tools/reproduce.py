@@ -25,24 +25,28 @@ Groups for `--settings`: `main` (dm_r0.3, hc_stop), `ratio`, `size`, `halting`, 
 Every setting has 50 test trajectories per case and a 20 % validation split.
 
 Cache (`--out-dir`, default outputs/reproduce): `data/<stem>.h5` per dataset (the stem names
-every generator input) and `runs/<stem>/<variant>/seed<k>_ep<E>/` per run (train's files plus
-`eval.json`, written last and atomically, and for seed 0 of ours and s_attn `scenes.npz`, the
-predictions of the figure scenes). A run with its eval.json is reused; a run with last.pt
-resumes (bit-identical to an uninterrupted one); Ctrl-C stops cleanly and a rerun of the same
-command continues. Identical inputs share one cache entry.
+every generator input) and `runs/<stem>/<variant>/seed<k>_ep<E>_<hash>/` per run (train's
+files plus `eval.json`, written last and atomically, and for seed 0 of ours and s_attn
+`scenes.npz`, the predictions of the figure scenes). A run with its eval.json is reused; a run
+with last.pt resumes (bit-identical to an uninterrupted one); Ctrl-C stops cleanly and a rerun
+of the same command continues. Identical inputs share one cache entry. The keys hash the
+scenario, model and training configurations (a changed default starts new runs) but not the
+code: delete the cache after changing how experts, model or training behave.
 
-Expected wall time (measured on this 2-core AMD EPYC VM, 1 torch thread per job, other work
-running): one epoch of the default model costs ~0.065 s per training scene (~3.4 s for the 52
-training scenes of a ratio-0.3 setting, validation included), so a 200-epoch run takes ~11 min
-for 52 scenes, ~15 min for 72 (dm_r0.8), ~2.5 min for 10 (dm_3+10), ~8 min for 36 (dm_15+30),
-~28 min for 104 (dm_30+100); evaluation is seconds. The full protocol (350 runs, ~78 CPU-hours)
-therefore takes ~39 h with --jobs 2 on two free cores; `--settings main` ~11 h, `--quick` ~1-2
-min.
+Expected wall time, measured on the 2-core AMD EPYC development VM (1 torch thread, other work
+running; epoch times include validation): the variants with the sequence loss (ours,
+nonsmooth, average, correct) cost ~0.046 s per training scene and epoch, s_attn ~0.019 s
+(dm_r0.3, 52 training scenes: ~2.4 s vs ~1.0 s per epoch; dm_30+100, 104 scenes: ~4.7 s vs
+~2.0 s). A 200-epoch run thus takes ~8 min (ours) / ~3.5 min (s_attn) on a ratio-0.3 setting and
+~16 / ~7 min on dm_30+100; evaluation takes seconds. The seven settings hold 378 training scenes
+in all, so the full protocol (350 runs) is ~43 CPU-hours: ~22-26 h with --jobs 2 on two free
+cores. `--settings main` (100 runs) ~6 h; `--quick` ~1 min.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import io
 import json
 import multiprocessing
@@ -137,11 +141,12 @@ class DataSpec:
     num_minor: int
     num_test: int
     seed: int
+    scenario_digest: str  # of the scenario's configuration (a changed default changes the key)
 
     @property
     def stem(self) -> str:
         return (f"{self.scenario}_{self.major_case}-major_{self.num_minor}+{self.num_major}"
-                f"_test{self.num_test}_seed{self.seed}")
+                f"_test{self.num_test}_seed{self.seed}_{self.scenario_digest}")
 
     def argv(self, out: Path) -> list[str]:
         return ["--scenario", self.scenario, "--major-case", self.major_case,
@@ -162,10 +167,26 @@ class Job:
 
 
 # ---------------------------------------------------------------------------------- planning
+def digest(value: object) -> str:
+    """Short stable hash of a JSON-able value (cache keys)."""
+    text = json.dumps(value, sort_keys=True, default=str)
+    return hashlib.sha1(text.encode()).hexdigest()[:8]
+
+
 def data_spec(protocol: Protocol, setting: Setting) -> DataSpec:
+    from scenarios import SCENARIOS
+
     num_major, num_minor = protocol.counts(setting)
+    config = asdict(SCENARIOS[setting.scenario]().config)
     return DataSpec(setting.scenario, setting.major_case, num_major, num_minor,
-                    protocol.num_test, protocol.data_seed)
+                    protocol.num_test, protocol.data_seed, digest(config))
+
+
+def run_configs(variant: str, seed: int, epochs: int) -> tuple:
+    """(ModelConfig, TrainConfig) of a run: the paper's defaults, one torch thread."""
+    from predictor.config import make_configs
+
+    return make_configs(variant, None, seed=seed, epochs=epochs, threads=1)
 
 
 def data_path(out_dir: Path, spec: DataSpec) -> Path:
@@ -173,8 +194,14 @@ def data_path(out_dir: Path, spec: DataSpec) -> Path:
 
 
 def run_dir(out_dir: Path, spec: DataSpec, variant: str, seed: int, epochs: int) -> Path:
+    """runs/<stem>/<variant>/seed<k>_ep<E>_<digest of the model and training configs>."""
+    from predictor.config import config_to_dict
+
     base = out_dir / "runs" / spec.stem / variant
-    return base if variant == BASELINE else base / f"seed{seed}_ep{epochs}"
+    if variant == BASELINE:
+        return base
+    configs = [config_to_dict(c) for c in run_configs(variant, seed, epochs)]
+    return base / f"seed{seed}_ep{epochs}_{digest(configs)}"
 
 
 def setting_jobs(protocol: Protocol, setting: Setting, out_dir: Path) -> list[Job]:
@@ -262,13 +289,11 @@ def run_job(job: Job) -> dict:
 
 
 def _train(job: Job) -> str:
-    from predictor.config import make_configs
     from predictor.training import train
 
     directory = Path(job.run_dir)
     resume = (directory / "last.pt").is_file()
-    model_cfg, train_cfg = make_configs(job.variant, None, seed=job.seed, epochs=job.epochs,
-                                        threads=1)
+    model_cfg, train_cfg = run_configs(job.variant, job.seed, job.epochs)
     train(job.data_path, model_cfg, train_cfg, directory, resume=resume, overwrite=not resume,
           progress=False)
     return "resumed" if resume else "trained"
