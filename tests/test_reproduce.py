@@ -292,6 +292,13 @@ def test_bar_inputs_from_hand_made_runs():
     np.testing.assert_allclose(fde.means, [[4.0, 6.0]])
 
 
+def test_size_series_from_hand_made_runs():
+    aggregates = _report.aggregate(hand_records())
+    mean, std = _report.series(aggregates, ["hc_go", "missing"], "s_attn", "minor", "fde")
+    np.testing.assert_allclose(mean, [16.0, np.nan])  # 2 x minor ADE 8 in both seeds
+    np.testing.assert_allclose(std, [0.0, 0.0])
+
+
 def test_comparisons_and_verdicts_on_hand_made_runs():
     tests = _report.compare(hand_records())
     cell = tests["hc_go"]["ours_vs_s_attn"]["main_agents"]["major"]["ade"]

@@ -284,6 +284,16 @@ def _legend_below(fig, ax) -> None:
                frameon=False)
 
 
+def series(aggregates: dict, settings: list, variant: str, case: str, metric: str
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Means (NaN where missing) and stds (0 where undefined) of one variant across settings."""
+    summaries = [aggregates.get(s, {}).get(variant, {}).get(HEADLINE, {}).get(case, {})
+                 .get(metric, {"mean": None, "std": None}) for s in settings]
+    mean = np.array([np.nan if v["mean"] is None else v["mean"] for v in summaries])  # (S,)
+    std = np.array([v["std"] or 0.0 for v in summaries])  # (S,)
+    return mean, std
+
+
 def size_figure(aggregates: dict, size_settings: list, labels: list, variants: tuple[str, ...]):
     """Test error against training-set size (the paper's Fig. 4): rows metrics, columns cases."""
     fig = new_figure(10.0, 6.0)
@@ -295,11 +305,7 @@ def size_figure(aggregates: dict, size_settings: list, labels: list, variants: t
     for row, metric, column, case in cells:
         ax = axes[row, column]
         for offset, variant in zip(dodge, variants):
-            summaries = [aggregates.get(s, {}).get(variant, {}).get(HEADLINE, {})
-                         .get(case, {}).get(metric, {}) for s in size_settings]
-            mean = np.array([s.get("mean") if s.get("mean") is not None else np.nan
-                             for s in summaries])
-            std = np.array([s.get("std") or 0.0 for s in summaries])
+            mean, std = series(aggregates, size_settings, variant, case, metric)
             if np.isfinite(mean).any():
                 ax.errorbar(x + offset, mean, yerr=std, marker="o", capsize=3,
                             color=COLORS[variant], label=LABELS[variant])
