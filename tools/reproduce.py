@@ -441,7 +441,7 @@ def parse_args(argv: list[str] | None = None):
     parser.add_argument("--jobs", type=int, default=2,
                         help="parallel processes, one torch thread each (default 2)")
     parser.add_argument("--quick", action="store_true",
-                        help=f"tiny smoke version: {QUICK_EPOCHS} epochs, {QUICK_SEEDS} seeds, "
+                        help=f"tiny smoke version: {QUICK_EPOCHS} epoch(s), {QUICK_SEEDS} seeds, "
                              f"{QUICK_NUM_TEST} test scenes per case, at most "
                              f"{QUICK_MAX_MAJOR} major trajectories")
     parser.add_argument("--out-dir", default=None,
