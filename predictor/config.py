@@ -21,6 +21,7 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 ATTENTION_MODES = ("learned", "uniform", "oracle")
+MEAN_PRIORS = ("velocity", "position")
 
 
 @dataclass(frozen=True)
@@ -33,16 +34,22 @@ class ModelConfig:
 
     Inputs are 2-D positions in metres. Inside the model they are expressed relative to a
     per-scene origin (the mean position of the agents present at the last observed step) and
-    divided by `position_scale_m`; per-step displacements are divided by `step_scale_m`.
+    divided by `position_scale_m`; offsets between agents are divided by `interaction_scale_m`
+    and per-step displacements by `step_scale_m`. See predictor/model.py for the output
+    parametrisation (mean prior, std floor, initial std and gain).
     """
 
     embed_dim: int = 16  # output width of F_embed, F_self and F_interact
     edge_hidden: int = 16  # hidden width of the edge RNN G_interact and self RNN G_self
     node_hidden: int = 32  # hidden width of the node RNN G_pred
     attn_dim: int = 8  # output width of F_attn (space of the attention inner product)
-    position_scale_m: float = 10.0  # [m] positions relative to the scene origin are divided by it
-    step_scale_m: float = 1.0  # [m] per-step displacement scale (~ speed * dt = 10 m/s * 0.1 s)
-    min_std_m: float = 0.01  # [m] floor of the predicted standard deviations (Cholesky diagonal)
+    position_scale_m: float = 100.0  # [m] positions relative to the scene origin are divided by it
+    interaction_scale_m: float = 10.0  # [m] offsets s_j - s_i between agents are divided by it
+    step_scale_m: float = 2.0  # [m] per-step displacement scale (~ speed * dt = 10 m/s * 0.2 s)
+    min_std_m: float = 0.001  # [m] floor of the predicted standard deviations (Cholesky diagonal)
+    init_std_m: float = 0.1  # [m] standard deviations predicted at initialisation
+    log_std_gain: float = 10.0  # std = min + (init - min) * exp(gain * F_pred output)
+    mean_prior: str = "velocity"  # mean = prior + offset; prior p^t + (p^t - p^{t-1}) or p^t
     attention_mode: str = "learned"  # "learned" (F_attn), "uniform" (average) or "oracle"
     chunk_steps: int = 8  # teacher-forced steps per LSTM call; affects speed only, not results
 
@@ -50,9 +57,17 @@ class ModelConfig:
         for name in ("embed_dim", "edge_hidden", "node_hidden", "attn_dim", "chunk_steps"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ModelConfig.{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("position_scale_m", "step_scale_m", "min_std_m"):
+        for name in ("position_scale_m", "interaction_scale_m", "step_scale_m", "min_std_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ModelConfig.{name} must be > 0, got {getattr(self, name)}")
+        if not self.log_std_gain > 0:
+            raise ValueError("ModelConfig.log_std_gain must be > 0")
+        if not self.init_std_m > self.min_std_m:
+            raise ValueError("ModelConfig.init_std_m must exceed min_std_m")
+        if self.mean_prior not in MEAN_PRIORS:
+            raise ValueError(
+                f"ModelConfig.mean_prior must be one of {MEAN_PRIORS}, got {self.mean_prior!r}"
+            )
         if self.attention_mode not in ATTENTION_MODES:
             raise ValueError(
                 f"ModelConfig.attention_mode must be one of {ATTENTION_MODES}, "

@@ -14,13 +14,21 @@ and predicts the position at t+1. Its attention is theta^t.
 
 State and normalisation: the state s_i is the 2-D position (the fed-back rollout only has
 positions). Positions are taken relative to a per-scene origin, the mean position of the agents
-present at the last observed step, and divided by `position_scale_m`; absent agents get zeros.
-The network inputs are fixed invertible linear recombinations of the paper's concatenations,
-which the first linear layer absorbs (same function class, better conditioned):
-F_interact sees (s_i, s_j - s_i) and F_self sees (s_i^t, (p^t - p^{t-1}) / step_scale_m).
-The predicted mean is the current position plus a learned offset (times `step_scale_m`); the
-covariance is given by its Cholesky factor L = [[l11, 0], [l21, l22]] in metres, with
-l11, l22 = min_std_m + step_scale_m * softplus(.) > 0.
+present at the last observed step, and divided by `position_scale_m` (100 m: a scene spans a few
+hundred metres); absent agents get zeros. The network inputs are fixed invertible linear
+recombinations of the paper's concatenations, which the first linear layer absorbs (same
+function class, better conditioned): F_interact sees (s_i, (p_j - p_i) / interaction_scale_m)
+and F_self sees (s_i^t, (p^t - p^{t-1}) / step_scale_m).
+
+Output: the mean is the current position plus a learned offset (F_pred times `step_scale_m`)
+added to a fixed prior: with `mean_prior="velocity"` (default) the prior is constant velocity,
+p^t + (p^t - p^{t-1}), so the network learns deviations from it; "position" uses p^t alone. The
+covariance is given by its Cholesky factor L = [[l11, 0], [l21, l22]] in metres with
+l_kk = min_std_m + (init_std_m - min_std_m) * exp(log_std_gain * F_pred) > 0 and
+l21 = c * l22 (correlation c / sqrt(1 + c^2)). F_pred starts at zero: the untrained model
+predicts the prior with stds init_std_m. The gain lets Adam (lr 1e-3) move the stds across the
+decades they need (1 mm for a car at constant speed, metres late in a rollout) within a
+paper-length run; without it a std moves ~0.1 % per step.
 
 Everything is batched over scenes, agents and edges; the only Python loop is over the time steps
 of the fed-back rollout. Absent agents are masked out of the attention.
@@ -28,6 +36,7 @@ of the fed-back rollout. Absent agents are masked out of the attention.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -38,6 +47,7 @@ from torch import Tensor, nn
 from predictor.config import ModelConfig
 
 LSTMState = tuple[Tensor, Tensor]
+MAX_LOG_GAIN = 12.0  # cap of log(std excess / initial excess): stds stay finite
 
 
 @dataclass
@@ -119,7 +129,12 @@ class ModelOutput:
 
 
 def edge_index(num_agents: int, device: torch.device | None = None) -> tuple[Tensor, Tensor]:
-    """Tail i and head j of the N*(N-1) directed edges, i-major, heads ascending."""
+    """Tail i and head j of the N*(N-1) directed edges, i-major, heads ascending (cached)."""
+    return _edge_index(num_agents, str(torch.device(device or "cpu")))
+
+
+@functools.lru_cache(maxsize=16)
+def _edge_index(num_agents: int, device: str) -> tuple[Tensor, Tensor]:
     pairs = torch.arange(num_agents * num_agents, device=device)  # (N*N,)
     tail, head = pairs // num_agents, pairs % num_agents  # (N*N,), (N*N,)
     keep = tail != head  # (N*N,)
@@ -165,6 +180,9 @@ class SmoothAttentionPredictor(nn.Module):
         self.f_attn = nn.Linear(hid, config.attn_dim) if learned else None
         self.g_pred = nn.LSTM(emb + 2 * hid, config.node_hidden)
         self.f_pred = nn.Linear(config.node_hidden, 5)  # offset (2), Cholesky raw (3)
+        with torch.no_grad():  # start exactly at the mean prior, stds init_std_m, no correlation
+            self.f_pred.weight.zero_()
+            self.f_pred.bias.zero_()
 
     # ----------------------------------------------------------------------------- public API
     def forward(
@@ -239,8 +257,9 @@ class SmoothAttentionPredictor(nn.Module):
         """Teacher-forced steps start .. stop-1 (None if empty).
 
         The steps run in chunks of `chunk_steps` per nn.LSTM call, carrying the recurrent state:
-        the same result as one call over the whole span, but faster on CPU (the working set of a
-        chunk stays in cache; measured ~2x for the edge RNN).
+        the same result as one call over the whole span (tested), but faster on CPU because a
+        chunk's working set stays in cache (a training epoch of the default shape took ~10-20 %
+        less time with chunks of 8 than with one call over all 59 steps).
         """
         if stop <= start:
             return None
@@ -315,21 +334,25 @@ class SmoothAttentionPredictor(nn.Module):
         node_in = torch.cat([self.f_embed(rel), attended, o_self], -1)  # (S, B, N, E+2H)
         o_node, h_node = self.g_pred(node_in.flatten(1, 2), state.node)  # (S, B*N, Hn)
         raw = self.f_pred(o_node).view(num_steps, batch, num_agents, 5)  # (S, B, N, 5)
-        gaussian = self._gaussian(raw, pos)
+        base = pos + (pos - prev_pos) if cfg.mean_prior == "velocity" else pos  # (S, B, N, 2)
+        gaussian = self._gaussian(raw, base)
         return StepOutputs(gaussian, theta, RecurrentState(h_edge, h_self, h_node))
 
     def _edge_inputs(self, rel: Tensor, head: Tensor) -> Tensor:
         """x_ij = F_interact(concat(s_i, s_j - s_i)), all edges: (S, B, N, 2) -> (S, B, N, N-1, E).
 
+        s_i is the position at `position_scale_m`, s_j - s_i the offset at `interaction_scale_m`.
+
         The linear layer is split into a tail part and a head part, evaluated per agent and
         added per edge, which is exact and avoids a matmul over the N*(N-1) edges.
         """
         linear = self.f_interact[0]
-        w_tail, w_rel = linear.weight[:, :2], linear.weight[:, 2:]  # (E, 2), (E, 2)
+        gain = self.config.position_scale_m / self.config.interaction_scale_m
+        w_tail, w_rel = linear.weight[:, :2], linear.weight[:, 2:] * gain  # (E, 2), (E, 2)
         per_tail = F.linear(rel, w_tail - w_rel, linear.bias)  # (S, B, N, E)
         per_head = F.linear(rel, w_rel)  # (S, B, N, E)
         shape = (*rel.shape[:2], rel.shape[2], rel.shape[2] - 1, per_head.shape[-1])
-        heads = per_head[:, :, head].view(shape)  # (S, B, N, N-1, E)
+        heads = per_head.index_select(2, head).view(shape)  # (S, B, N, N-1, E)
         return self.f_interact[1](per_tail.unsqueeze(-2) + heads)  # (S, B, N, N-1, E)
 
     def _attention(
@@ -337,7 +360,7 @@ class SmoothAttentionPredictor(nn.Module):
     ) -> Tensor:
         """theta (S, B, N, N-1) over present other agents; zero rows for absent agents."""
         shape = o_edge.shape[:-1]  # (S, B, N, N-1)
-        others = present[..., head].view(shape)  # (S, B, N, N-1) head j present
+        others = present.index_select(-1, head).view(shape)  # (S, B, N, N-1) head j present
         mask = others & present.unsqueeze(-1)  # (S, B, N, N-1) tail i present too
         mode = self.config.attention_mode
         if mode == "learned":
@@ -355,12 +378,13 @@ class SmoothAttentionPredictor(nn.Module):
         labelled = onehot.any(-1, keepdim=True)  # (S, B, N, 1)
         return torch.where(labelled, onehot.to(uniform.dtype), uniform)  # (S, B, N, N-1)
 
-    def _gaussian(self, raw: Tensor, pos: Tensor) -> Gaussian2D:
-        """Next-position Gaussian from the F_pred output (..., 5) and current positions (..., 2)."""
+    def _gaussian(self, raw: Tensor, base: Tensor) -> Gaussian2D:
+        """Next-position Gaussian from the F_pred output (..., 5) and the base of the mean [m]."""
         cfg = self.config
-        mean = pos + raw[..., :2] * cfg.step_scale_m  # (..., 2)
-        diag = cfg.min_std_m + cfg.step_scale_m * F.softplus(raw[..., 2:4])  # (..., 2)
-        off = raw[..., 4:5] * cfg.step_scale_m  # (..., 1)
+        mean = base + raw[..., :2] * cfg.step_scale_m  # (..., 2)
+        log_gain = (cfg.log_std_gain * raw[..., 2:4]).clamp(max=MAX_LOG_GAIN)  # (..., 2)
+        diag = cfg.min_std_m + (cfg.init_std_m - cfg.min_std_m) * torch.exp(log_gain)  # (..., 2)
+        off = raw[..., 4:5] * diag[..., 1:]  # (..., 1) l21 = c * l22: correlation c / sqrt(1+c^2)
         tril = torch.cat([diag[..., :1], off, diag[..., 1:]], -1)  # (..., 3)
         return Gaussian2D(mean, tril)
 

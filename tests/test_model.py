@@ -173,3 +173,26 @@ def test_variant_configs():
         make_configs("nonsmooth", beta2=0.1)
     with pytest.raises(ValueError, match="unknown"):
         make_configs("ours", {"hidden": 3})
+
+
+def test_untrained_model_predicts_the_mean_prior_with_the_initial_std():
+    positions, valid, _ = make_scene()
+    for prior in ("velocity", "position"):
+        model = make_model(mean_prior=prior, init_std_m=0.3)
+        out = model(positions, valid, 4, rollout=False)
+        current, previous = positions[:, 1:-1], positions[:, :-2]  # steps t = 1 .. T-2
+        expected = 2 * current - previous if prior == "velocity" else current
+        keep = valid[:, 1:-1] & valid[:, :-2]  # (B, T-2, N) present at t and t-1
+        torch.testing.assert_close(out.one_step.mean[:, 1:][keep], expected[keep])
+        torch.testing.assert_close(out.one_step.tril, torch.tensor([0.3, 0.0, 0.3]).expand_as(
+            out.one_step.tril))
+
+
+def test_split_edge_layer_equals_the_concatenated_input():
+    model = make_model(position_scale_m=50.0, interaction_scale_m=5.0)
+    rel = torch.randn(3, 2, 5, 2)  # (S, B, N, 2) positions at position_scale
+    tail, head = edge_index(5)
+    gain = 50.0 / 5.0  # offsets between agents are read at interaction_scale
+    direct = model.f_interact(torch.cat([rel[:, :, tail], (rel[:, :, head] - rel[:, :, tail])
+                                         * gain], -1))  # (S, B, M, E)
+    torch.testing.assert_close(model._edge_inputs(rel, head).flatten(2, 3), direct)

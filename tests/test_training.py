@@ -82,8 +82,8 @@ def test_loss_falls_on_a_tiny_set(braking_file: Path):
     optimizer = torch.optim.Adam(model.parameters(), lr=train_cfg.lr)
     losses = [train_step(model, optimizer, batch, 5, train_cfg)["loss"] for _ in range(40)]
     assert all(np.isfinite(losses))
-    # per agent-step NLL in nats: a fall of 3 means the predicted density at the truth grew e^3x
-    assert np.mean(losses[-5:]) < losses[0] - 3.0, losses
+    # the untrained model extrapolates constant velocity with 0.1 m stds, so braking costs a lot
+    assert losses[0] > 50 and np.mean(losses[-5:]) < 0.25 * losses[0], losses
 
 
 def tiny_configs(variant: str = "ours", epochs: int = 3, seed: int = 0):

@@ -18,7 +18,8 @@ from predictor.format import FormatError
 from predictor.training import RunError, stored_configs, train
 
 MODEL_FLAGS = ("embed_dim", "edge_hidden", "node_hidden", "attn_dim", "position_scale_m",
-               "step_scale_m", "min_std_m")
+               "interaction_scale_m",
+               "step_scale_m", "min_std_m", "init_std_m", "log_std_gain", "mean_prior")
 TRAIN_FLAGS = ("epochs", "batch_size", "lr", "beta1", "beta2", "tau", "grad_clip_norm",
                "eval_every", "threads")
 
