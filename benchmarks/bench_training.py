@@ -1,0 +1,165 @@
+"""Training throughput of the smooth-attention predictor on CPU (synthetic data, default shape).
+
+Usage: python benchmarks/bench_training.py [--threads 1,2] [--repeats 3] [--variant ours]
+
+Times whole training epochs (optimiser steps included) and the per-epoch validation pass on
+synthetic scenes of the default Double Merge shape (52 train + 13 val scenes, T = 60 steps,
+15 observed, 22 agents = 462 edges per scene, batch 8), for each torch thread count. Reports,
+per thread count, the median over repeats of:
+
+- epoch_s / val_s: one training epoch / one validation pass (fed-back means, no_grad) [s]
+  (wall clock; epoch_cpu_s is the process CPU time of the epoch, less sensitive to other load)
+- full_run_s: projected paper-length run, epochs x (epoch_s + val_s) [s] (target: < 600 s)
+- scene_steps_per_s: training throughput, scenes x (T - 1) steps per second of training
+- model_gflops / matmul_gflops / fraction_of_matmul: achieved rate from an analytic count of
+  the model's multiply-adds (forward + backward ~ 3 x forward) vs. a dense 1024^2 sgemm measured
+  in the same process
+
+The last line of stdout is one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from predictor.config import ModelConfig, make_configs  # noqa: E402
+from predictor.data import Batch  # noqa: E402
+from predictor.evaluation import predict_model  # noqa: E402
+from predictor.model import SmoothAttentionPredictor  # noqa: E402
+from predictor.training import train_step  # noqa: E402
+
+
+def synthetic_batch(scenes: int, steps: int, agents: int, seed: int) -> Batch:
+    """Cars on 4 lanes at constant speed, one car per scene braking halfway."""
+    gen = torch.Generator().manual_seed(seed)
+    dt = 0.2
+    speed = 8 + 4 * torch.rand(scenes, 1, agents, generator=gen)  # (B, 1, N) [m/s]
+    speed = speed.repeat(1, steps, 1)  # (B, T, N)
+    speed[:, steps // 2 :, 0] *= torch.linspace(1, 0.3, steps - steps // 2).unsqueeze(0)
+    x = torch.cumsum(speed * dt, 1) + 200 * torch.rand(scenes, 1, agents, generator=gen)
+    y = (3.5 * (torch.arange(agents) % 4)).expand(scenes, steps, agents).float()
+    states = torch.stack([x, y, torch.zeros_like(x), speed], -1)  # (B, T, N, 4)
+    labels = torch.full((scenes, steps, agents), -1, dtype=torch.long)
+    return Batch(states=states, valid=torch.ones(scenes, steps, agents, dtype=torch.bool),
+                 attention=labels, interaction=torch.zeros(scenes, steps, dtype=torch.bool),
+                 case=torch.zeros(scenes, dtype=torch.long),
+                 seed=torch.arange(scenes), roles=torch.zeros(scenes, agents, dtype=torch.long))
+
+
+def forward_macs(cfg: ModelConfig, agents: int, steps: int, observed: int, rollout: bool) -> int:
+    """Multiply-adds of one forward training pass over one scene."""
+    e, h, hn, a = cfg.embed_dim, cfg.edge_hidden, cfg.node_hidden, cfg.attn_dim
+    edges = agents * (agents - 1)
+    per_agent = (
+        4 * e + 2 * 2 * e  # F_self; F_interact split into a tail and a head part
+        + 4 * h * (e + h)  # G_self
+        + 2 * h * a  # F_attn(o_ii) and its query W^T F_attn(o_ii)
+        + 2 * e  # F_embed
+        + 4 * hn * (e + 2 * h + hn)  # G_pred
+        + 5 * hn  # F_pred
+    )
+    per_edge = 4 * h * (e + h) + 2 * h  # G_interact; attention score and attended sum
+    per_step = agents * per_agent + edges * per_edge
+    step_count = (steps - 1) + ((steps - observed - 1) if rollout else 0)
+    return per_step * step_count
+
+
+def matmul_gflops(repeats: int = 20, size: int = 1024) -> float:
+    """Dense float32 matmul rate at the current thread count [GFLOP/s], median of repeats."""
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    a @ b  # warm-up
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        a @ b
+        times.append(time.perf_counter() - start)
+    return 2 * size**3 / statistics.median(times) / 1e9
+
+
+def time_epoch(model, optimizer, batches: list[Batch], observed: int, train_cfg
+               ) -> tuple[float, float]:
+    """(wall, process CPU) seconds of one training epoch."""
+    start, cpu = time.perf_counter(), time.process_time()
+    for batch in batches:
+        train_step(model, optimizer, batch, observed, train_cfg)
+    return time.perf_counter() - start, time.process_time() - cpu
+
+
+def bench_threads(threads: int, args) -> dict:
+    torch.set_num_threads(threads)
+    model_cfg, train_cfg = make_configs(args.variant)
+    torch.manual_seed(0)
+    model = SmoothAttentionPredictor(model_cfg)
+    optimizer = torch.optim.Adam(model.parameters(), lr=train_cfg.lr)
+    train = synthetic_batch(args.scenes, args.steps, args.agents, seed=1)
+    val = synthetic_batch(args.val_scenes, args.steps, args.agents, seed=2)
+    size = train_cfg.batch_size
+    batches = [Batch(**{k: v[i : i + size] for k, v in vars(train).items()})
+               for i in range(0, args.scenes, size)]
+    train_step(model, optimizer, batches[0], args.observed, train_cfg)  # warm-up
+    epochs, cpus, vals, rates = [], [], [], []
+    for _ in range(args.repeats):
+        rates.append(matmul_gflops())
+        wall, cpu = time_epoch(model, optimizer, batches, args.observed, train_cfg)
+        epochs.append(wall)
+        cpus.append(cpu)
+        start = time.perf_counter()
+        predict_model(model, val, args.observed)
+        vals.append(time.perf_counter() - start)
+    epoch_s, val_s, rate = (statistics.median(v) for v in (epochs, vals, rates))
+    macs = forward_macs(model_cfg, args.agents, args.steps, args.observed,
+                        train_cfg.sequence_loss) * args.scenes
+    model_gflops = 3 * 2 * macs / epoch_s / 1e9
+    return {
+        "threads": threads,
+        "epoch_s": round(epoch_s, 3),
+        "epoch_cpu_s": round(statistics.median(cpus), 3),
+        "val_s": round(val_s, 3),
+        "full_run_s": round(train_cfg.epochs * (epoch_s + val_s), 1),
+        "scene_steps_per_s": round(args.scenes * (args.steps - 1) / epoch_s, 1),
+        "model_gflops": round(model_gflops, 2),
+        "matmul_gflops": round(rate, 1),
+        "fraction_of_matmul": round(model_gflops / rate, 4),
+        "epoch_s_all": [round(v, 3) for v in epochs],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--threads", default="1,2", help="comma-separated torch thread counts")
+    parser.add_argument("--repeats", type=int, default=3, help="timed epochs per thread count")
+    parser.add_argument("--variant", default="ours", help="model variant")
+    parser.add_argument("--scenes", type=int, default=52, help="training scenes")
+    parser.add_argument("--val-scenes", type=int, default=13, help="validation scenes")
+    parser.add_argument("--steps", type=int, default=60, help="recorded steps T")
+    parser.add_argument("--observed", type=int, default=15, help="observed steps")
+    parser.add_argument("--agents", type=int, default=22, help="agents per scene")
+    args = parser.parse_args()
+    results = []
+    for threads in (int(t) for t in args.threads.split(",")):
+        result = bench_threads(threads, args)
+        results.append(result)
+        print(f"threads={threads}: epoch {result['epoch_s']} s, val {result['val_s']} s, "
+              f"projected 200-epoch run {result['full_run_s']} s, "
+              f"{result['scene_steps_per_s']} scene-steps/s, "
+              f"{result['fraction_of_matmul']:.1%} of dense matmul", file=sys.stderr)
+    model_cfg, train_cfg = make_configs(args.variant)
+    print(json.dumps({
+        "benchmark": "training", "variant": args.variant, "scenes": args.scenes,
+        "val_scenes": args.val_scenes, "steps": args.steps, "observed": args.observed,
+        "agents": args.agents, "batch_size": train_cfg.batch_size, "epochs": train_cfg.epochs,
+        "model": vars(model_cfg), "results": results,
+    }))
+
+
+if __name__ == "__main__":
+    main()
