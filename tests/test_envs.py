@@ -422,3 +422,15 @@ def test_play_human_window_with_keyboard_control_runs_headless() -> None:
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("double_merge minor seed 0: 60 steps")
+
+
+def test_play_records_an_mp4(tmp_path: Path) -> None:
+    pytest.importorskip("imageio_ffmpeg")
+    import imageio.v3 as iio
+
+    video = tmp_path / "minor.mp4"
+    done = run_play("--scenario", "double_merge", "--case", "minor", "--record", str(video))
+    assert done.returncode == 0, done.stderr
+    assert "WARNING" not in done.stderr  # frames padded to H.264 macro blocks, not resized
+    frames = iio.imread(video)
+    assert frames.shape == (61, 208, 800, 3)

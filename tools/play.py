@@ -137,7 +137,10 @@ def write_video(path: Path, frames: list[np.ndarray], fps: float) -> None:
         if path.suffix.lower() == ".gif":
             iio.imwrite(temp, np.stack(frames), duration=1000.0 / fps, loop=0)
         else:
-            iio.imwrite(temp, np.stack(frames), fps=fps, codec="libx264")
+            video = np.stack(frames)  # (F, H, W, 3)
+            # H.264 players want sides divisible by 16: pad with the border rather than resize
+            pad = [(0, 0), (0, -video.shape[1] % 16), (0, -video.shape[2] % 16), (0, 0)]
+            iio.imwrite(temp, np.pad(video, pad, mode="edge"), fps=fps, codec="libx264")
 
 
 def main(argv: list[str] | None = None) -> None:
