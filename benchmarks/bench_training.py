@@ -1,6 +1,8 @@
 """Training throughput of the smooth-attention predictor on CPU (synthetic data, default shape).
 
-Usage: python benchmarks/bench_training.py [--threads 1,2] [--repeats 3] [--variant ours]
+Usage: python benchmarks/bench_training.py [--threads 1] [--repeats 3] [--variant ours]
+(`--threads 1,2` compares thread counts; only meaningful on an otherwise idle machine: with
+the other core busy, 2 threads oversubscribe and one epoch took 146 s instead of 2.2 s.)
 
 Times whole training epochs (optimiser steps included) and the per-epoch validation pass on
 synthetic scenes of the default Double Merge shape (52 train + 13 val scenes, T = 60 steps,
@@ -49,10 +51,15 @@ def synthetic_batch(scenes: int, steps: int, agents: int, seed: int) -> Batch:
     y = (3.5 * (torch.arange(agents) % 4)).expand(scenes, steps, agents).float()
     states = torch.stack([x, y, torch.zeros_like(x), speed], -1)  # (B, T, N, 4)
     labels = torch.full((scenes, steps, agents), -1, dtype=torch.long)
-    return Batch(states=states, valid=torch.ones(scenes, steps, agents, dtype=torch.bool),
-                 attention=labels, interaction=torch.zeros(scenes, steps, dtype=torch.bool),
-                 case=torch.zeros(scenes, dtype=torch.long),
-                 seed=torch.arange(scenes), roles=torch.zeros(scenes, agents, dtype=torch.long))
+    return Batch(
+        states=states,
+        valid=torch.ones(scenes, steps, agents, dtype=torch.bool),
+        attention=labels,
+        interaction=torch.zeros(scenes, steps, dtype=torch.bool),
+        case=torch.zeros(scenes, dtype=torch.long),
+        seed=torch.arange(scenes),
+        roles=torch.zeros(scenes, agents, dtype=torch.long),
+    )
 
 
 def forward_macs(cfg: ModelConfig, agents: int, steps: int, observed: int, rollout: bool) -> int:
@@ -60,7 +67,8 @@ def forward_macs(cfg: ModelConfig, agents: int, steps: int, observed: int, rollo
     e, h, hn, a = cfg.embed_dim, cfg.edge_hidden, cfg.node_hidden, cfg.attn_dim
     edges = agents * (agents - 1)
     per_agent = (
-        4 * e + 2 * 2 * e  # F_self; F_interact split into a tail and a head part
+        4 * e
+        + 2 * 2 * e  # F_self; F_interact split into a tail and a head part
         + 4 * h * (e + h)  # G_self
         + 2 * h * a  # F_attn(o_ii) and its query W^T F_attn(o_ii)
         + 2 * e  # F_embed
@@ -85,8 +93,9 @@ def matmul_gflops(repeats: int = 20, size: int = 1024) -> float:
     return 2 * size**3 / statistics.median(times) / 1e9
 
 
-def time_epoch(model, optimizer, batches: list[Batch], observed: int, train_cfg
-               ) -> tuple[float, float]:
+def time_epoch(
+    model, optimizer, batches: list[Batch], observed: int, train_cfg
+) -> tuple[float, float]:
     """(wall, process CPU) seconds of one training epoch."""
     start, cpu = time.perf_counter(), time.process_time()
     for batch in batches:
@@ -103,8 +112,10 @@ def bench_threads(threads: int, args) -> dict:
     train = synthetic_batch(args.scenes, args.steps, args.agents, seed=1)
     val = synthetic_batch(args.val_scenes, args.steps, args.agents, seed=2)
     size = train_cfg.batch_size
-    batches = [Batch(**{k: v[i : i + size] for k, v in vars(train).items()})
-               for i in range(0, args.scenes, size)]
+    batches = [
+        Batch(**{k: v[i : i + size] for k, v in vars(train).items()})
+        for i in range(0, args.scenes, size)
+    ]
     train_step(model, optimizer, batches[0], args.observed, train_cfg)  # warm-up
     epochs, cpus, vals, rates = [], [], [], []
     for _ in range(args.repeats):
@@ -116,8 +127,10 @@ def bench_threads(threads: int, args) -> dict:
         predict_model(model, val, args.observed)
         vals.append(time.perf_counter() - start)
     epoch_s, val_s, rate = (statistics.median(v) for v in (epochs, vals, rates))
-    macs = forward_macs(model_cfg, args.agents, args.steps, args.observed,
-                        train_cfg.sequence_loss) * args.scenes
+    macs = (
+        forward_macs(model_cfg, args.agents, args.steps, args.observed, train_cfg.sequence_loss)
+        * args.scenes
+    )
     model_gflops = 3 * 2 * macs / epoch_s / 1e9
     return {
         "threads": threads,
@@ -135,7 +148,9 @@ def bench_threads(threads: int, args) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--threads", default="1,2", help="comma-separated torch thread counts")
+    parser.add_argument(
+        "--threads", default="1", help="comma-separated torch thread counts (default 1)"
+    )
     parser.add_argument("--repeats", type=int, default=3, help="timed epochs per thread count")
     parser.add_argument("--variant", default="ours", help="model variant")
     parser.add_argument("--scenes", type=int, default=52, help="training scenes")
@@ -148,17 +163,31 @@ def main() -> None:
     for threads in (int(t) for t in args.threads.split(",")):
         result = bench_threads(threads, args)
         results.append(result)
-        print(f"threads={threads}: epoch {result['epoch_s']} s, val {result['val_s']} s, "
-              f"projected 200-epoch run {result['full_run_s']} s, "
-              f"{result['scene_steps_per_s']} scene-steps/s, "
-              f"{result['fraction_of_matmul']:.1%} of dense matmul", file=sys.stderr)
+        print(
+            f"threads={threads}: epoch {result['epoch_s']} s, val {result['val_s']} s, "
+            f"projected 200-epoch run {result['full_run_s']} s, "
+            f"{result['scene_steps_per_s']} scene-steps/s, "
+            f"{result['fraction_of_matmul']:.1%} of dense matmul",
+            file=sys.stderr,
+        )
     model_cfg, train_cfg = make_configs(args.variant)
-    print(json.dumps({
-        "benchmark": "training", "variant": args.variant, "scenes": args.scenes,
-        "val_scenes": args.val_scenes, "steps": args.steps, "observed": args.observed,
-        "agents": args.agents, "batch_size": train_cfg.batch_size, "epochs": train_cfg.epochs,
-        "model": vars(model_cfg), "results": results,
-    }))
+    print(
+        json.dumps(
+            {
+                "benchmark": "training",
+                "variant": args.variant,
+                "scenes": args.scenes,
+                "val_scenes": args.val_scenes,
+                "steps": args.steps,
+                "observed": args.observed,
+                "agents": args.agents,
+                "batch_size": train_cfg.batch_size,
+                "epochs": train_cfg.epochs,
+                "model": vars(model_cfg),
+                "results": results,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -34,14 +34,30 @@ def run_benchmark(script: Path) -> dict:
     return json.loads(result.stdout.strip().splitlines()[-1])
 
 
+def flat_figures(result: dict, prefix: str = "") -> list[tuple[str, object]]:
+    """(name, value) of every scalar figure; lists of dicts (e.g. one entry per thread count)
+    are labelled by their first field, e.g. `threads=1 epoch_s`."""
+    figures = []
+    for key, value in result.items():
+        if key == "benchmark" or isinstance(value, dict):
+            continue
+        if isinstance(value, list):
+            for entry in value:
+                if isinstance(entry, dict) and entry:
+                    first = next(iter(entry))
+                    rest = {k: v for k, v in entry.items() if k != first}
+                    figures += flat_figures(rest, f"{prefix}{first}={entry[first]} ")
+            continue
+        figures.append((prefix + key, value))
+    return figures
+
+
 def table(results: list[dict]) -> str:
     lines = ["| benchmark | figure | value |", "|---|---|---|"]
     for result in results:
-        for key, value in result.items():
-            if key == "benchmark" or isinstance(value, list | dict):
-                continue
+        for name, value in flat_figures(result):
             shown = f"{value:,}" if isinstance(value, int) else str(value)
-            lines.append(f"| {result['benchmark']} | {key} | {shown} |")
+            lines.append(f"| {result['benchmark']} | {name} | {shown} |")
     return "\n".join(lines)
 
 
