@@ -12,8 +12,11 @@ Conventions (shared by every predictor, the constant-velocity baseline included)
   drive at constant speed and would otherwise dominate the average of 22 agents.
 - Attention accuracy: over (step t, agent i) pairs with T_obs <= t <= T-2 (the fed-back steps
   whose attention theta^t is computed from predicted states), t inside the interaction period,
-  i predicted and present at t and labelled (label >= 0): the share where argmax_j theta^t_ij
-  equals the label.
+  i predicted and present at t and labelled (label >= 0): the share where the labelled agent's
+  weight is strictly larger than every other weight (a tie, e.g. uniform attention, is no hit:
+  `argmax` would break it toward the lowest index, which is the other main car). Also the mean
+  weight on the labelled agent over the same pairs (1/(N-1) for uniform attention), which is
+  informative even when the attention is close to uniform.
 """
 
 from __future__ import annotations
@@ -90,10 +93,10 @@ def attention_hits(
     valid: np.ndarray,
     num_observed: int,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-scene (hits, counted pairs) of the attention accuracy (see module docstring).
+    """Per-scene (hits, counted pairs, summed weight on the label) of the attention accuracy.
 
     attention (n, T-1, N, N) theta^t_ij; labels (n, T, N) int (-1 none); interaction (n, T) bool;
-    valid (n, T, N) bool. Returns two (n,) int arrays.
+    valid (n, T, N) bool. Returns three (n,) arrays (see the module docstring).
     """
     steps = slice(num_observed, attention.shape[1])  # t = T_obs .. T-2
     theta = attention[:, steps]  # (n, S, N, N)
@@ -104,8 +107,13 @@ def attention_hits(
         & valid[:, steps]
         & valid[:, num_observed - 1 : num_observed]
     )  # (n, S, N)
-    hit = (np.argmax(theta, axis=-1) == label) & keep  # (n, S, N)
-    return hit.sum(axis=(1, 2)), keep.sum(axis=(1, 2))
+    index = np.clip(label, 0, None)[..., None]  # (n, S, N, 1)
+    on_label = np.take_along_axis(theta, index, axis=-1)[..., 0]  # (n, S, N)
+    others = theta.copy()
+    np.put_along_axis(others, index, -np.inf, axis=-1)
+    hit = (on_label > others.max(axis=-1)) & keep  # (n, S, N): strictly the largest weight
+    weight = np.where(keep, on_label, 0.0)  # (n, S, N)
+    return hit.sum(axis=(1, 2)), keep.sum(axis=(1, 2)), weight.sum(axis=(1, 2))
 
 
 def attention_accuracy(
@@ -119,17 +127,18 @@ def attention_accuracy(
 ) -> dict:
     """Attention accuracy overall and per case: {"overall": {...}, "cases": {...}}.
 
-    Each entry has accuracy (None if nothing counts or the attention is NaN, as for constant
-    velocity) and count. Only labelled agents count, so in practice the main agents.
+    Each entry has accuracy and mean_weight (None if nothing counts or the attention is NaN, as
+    for constant velocity) and count. Only labelled agents count, so in practice the main agents.
     """
-    hits, counts = attention_hits(attention, labels, interaction, valid, num_observed)
+    hits, counts, weights = attention_hits(attention, labels, interaction, valid, num_observed)
     undefined = bool(np.isnan(attention).any())
     case = np.asarray(case)
 
     def pool(rows: np.ndarray) -> dict:
         count = int(counts[rows].sum())
         accuracy = None if undefined else _ratio(float(hits[rows].sum()), count)
-        return {"accuracy": accuracy, "count": count}
+        mean_weight = None if undefined else _ratio(float(weights[rows].sum()), count)
+        return {"accuracy": accuracy, "mean_weight": mean_weight, "count": count}
 
     return {
         "overall": pool(np.ones(len(case), dtype=bool)),

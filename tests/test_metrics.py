@@ -66,13 +66,29 @@ def test_attention_accuracy_by_hand():
     interaction = np.ones((n, steps), dtype=bool)
     valid = np.ones((n, steps, agents), dtype=bool)
     got = attention_accuracy(attention, labels, interaction, valid, 2, np.array([0]), ["x"])
-    assert got["overall"] == {"accuracy": 0.75, "count": 4}  # hits: (2,0) (3,0) (2,1)
+    # hits: (2,0) (3,0) (2,1); weights on the label: 0.7, 0.7, 0.9, 0.2
+    assert got["overall"] == {"accuracy": 0.75, "mean_weight": pytest.approx(0.625), "count": 4}
     interaction[0, 3] = False
     got = attention_accuracy(attention, labels, interaction, valid, 2, np.array([0]), ["x"])
-    assert got["overall"] == {"accuracy": 1.0, "count": 2}
+    assert got["overall"] == {"accuracy": 1.0, "mean_weight": pytest.approx(0.8), "count": 2}
     nan = np.full_like(attention, np.nan)
     got = attention_accuracy(nan, labels, interaction, valid, 2, np.array([0]), ["x"])
     assert got["cases"]["x"]["accuracy"] is None and got["cases"]["x"]["count"] == 2
+
+
+def test_uniform_attention_is_never_a_hit():
+    # argmax of a tie picks the lowest index, which is the labelled agent here: must not count
+    n, steps, agents = 1, 4, 3
+    attention = np.full((n, steps - 1, agents, agents), 0.5, dtype=np.float32)
+    for i in range(agents):
+        attention[:, :, i, i] = 0.0
+    labels = np.zeros((n, steps, agents), dtype=np.int16)
+    labels[..., 0] = 1
+    interaction = np.ones((n, steps), dtype=bool)
+    valid = np.ones((n, steps, agents), dtype=bool)
+    got = attention_accuracy(attention, labels, interaction, valid, 2, np.array([0]), ["x"])
+    assert got["overall"]["accuracy"] == 0.0 and got["overall"]["count"] == 3
+    assert got["overall"]["mean_weight"] == pytest.approx(0.5)
 
 
 def test_constant_velocity_extrapolates_the_last_step():
