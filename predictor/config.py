@@ -163,11 +163,16 @@ def make_configs(
     return model, _build(TrainConfig, train_values)
 
 
-def _build(cls: type, values: dict[str, Any]) -> Any:
+def _build(cls: type, values: dict[str, Any], complete: bool = False) -> Any:
+    """cls(**values); unknown keys are an error, and so are missing ones when `complete`."""
     names = {f.name for f in fields(cls)}
     unknown = sorted(set(values) - names)
     if unknown:
         raise ValueError(f"unknown {cls.__name__} field(s): {', '.join(unknown)}")
+    missing = sorted(names - set(values))
+    if complete and missing:
+        raise ValueError(f"{cls.__name__} lacks field(s) {', '.join(missing)} (written by an "
+                         "older version?)")
     return cls(**values)
 
 
@@ -177,10 +182,11 @@ def config_to_dict(config: ModelConfig | TrainConfig) -> dict[str, Any]:
 
 
 def model_config_from_dict(values: dict[str, Any]) -> ModelConfig:
-    """Rebuild a ModelConfig written by `config_to_dict`; unknown keys are an error."""
-    return _build(ModelConfig, dict(values))
+    """Rebuild a ModelConfig written by `config_to_dict`; unknown or missing keys are an error
+    (a stored model must not silently pick up a newer default)."""
+    return _build(ModelConfig, dict(values), complete=True)
 
 
 def train_config_from_dict(values: dict[str, Any]) -> TrainConfig:
-    """Rebuild a TrainConfig written by `config_to_dict`; unknown keys are an error."""
-    return _build(TrainConfig, dict(values))
+    """Rebuild a TrainConfig written by `config_to_dict`; unknown or missing keys are an error."""
+    return _build(TrainConfig, dict(values), complete=True)

@@ -123,3 +123,17 @@ def test_bad_input_is_one_line_and_exit_2(smoke, tmp_path, capsys, tool, args, m
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith("error:") and message in err, err
     assert "Traceback" not in err
+
+
+def test_checkpoint_missing_a_config_field_is_rejected(smoke, tmp_path: Path):
+    import torch
+
+    from predictor.evaluation import CheckpointError, load_model
+
+    checkpoint = torch.load(smoke["run"] / "best.pt", weights_only=True)
+    load_model(smoke["run"] / "best.pt")  # the intact file loads
+    del checkpoint["model_config"]["mean_prior"]  # as written by an older model version
+    old = tmp_path / "old.pt"
+    torch.save(checkpoint, old)
+    with pytest.raises(CheckpointError, match="lacks field"):
+        load_model(old)
