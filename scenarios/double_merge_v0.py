@@ -8,7 +8,7 @@ from pettingzoo.utils.conversions import parallel_to_aec
 from pettingzoo.utils.env import AECEnv
 
 from scenarios.double_merge import DoubleMerge
-from scenarios.env import ScenarioParallelEnv
+from scenarios.env import ScenarioParallelEnv, env_metadata
 
 
 class DoubleMergeEnv(ScenarioParallelEnv):
@@ -91,12 +91,7 @@ class DoubleMergeEnv(ScenarioParallelEnv):
     """
 
     scenario_class = DoubleMerge
-    metadata = {
-        "name": "double_merge_v0",
-        "render_modes": ["human", "rgb_array"],
-        "render_fps": 5,
-        "is_parallelizable": True,
-    }
+    metadata = env_metadata("double_merge_v0", DoubleMerge)
 
 
 raw_env = DoubleMergeEnv  # the unwrapped parallel environment

@@ -22,6 +22,7 @@ from scenarios.rollout import advance
 EGO_FEATURES = 4  # x, y, heading, speed
 OTHER_FEATURES = 5  # presence, dx, dy, d_heading, d_speed
 FRAME_WIDTH_PX, FRAME_HEIGHT_PX = 800, 200
+RENDER_MODES = ("human", "rgb_array")
 
 
 def observation_bounds(config: ScenarioConfig, num_cars: int) -> tuple[np.ndarray, np.ndarray]:
@@ -37,6 +38,17 @@ def observation_bounds(config: ScenarioConfig, num_cars: int) -> tuple[np.ndarra
     return low, high
 
 
+def env_metadata(name: str, scenario_class: type[Scenario]) -> dict[str, Any]:
+    """Class-level PettingZoo metadata of a scenario env: one frame per env step of the
+    scenario's default configuration (instances recompute render_fps from their own config)."""
+    return {
+        "name": name,
+        "render_modes": list(RENDER_MODES),
+        "render_fps": 1.0 / scenario_class.config_class().recorded_dt,
+        "is_parallelizable": True,
+    }
+
+
 class ScenarioParallelEnv(ParallelEnv):
     """Base class of the scenario environments; see `DoubleMergeEnv` / `HaltingCarEnv` for the
     user manual (observation table, actions, rewards, episode end, arguments)."""
@@ -44,7 +56,7 @@ class ScenarioParallelEnv(ParallelEnv):
     scenario_class: ClassVar[type[Scenario]]
     metadata: ClassVar[dict[str, Any]] = {
         "name": "scenario_v0",
-        "render_modes": ["human", "rgb_array"],
+        "render_modes": list(RENDER_MODES),
         "render_fps": 5,
         "is_parallelizable": True,
     }

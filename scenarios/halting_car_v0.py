@@ -7,7 +7,7 @@ from typing import Any
 from pettingzoo.utils.conversions import parallel_to_aec
 from pettingzoo.utils.env import AECEnv
 
-from scenarios.env import ScenarioParallelEnv
+from scenarios.env import ScenarioParallelEnv, env_metadata
 from scenarios.halting_car import HaltingCar
 
 
@@ -92,12 +92,7 @@ class HaltingCarEnv(ScenarioParallelEnv):
     """
 
     scenario_class = HaltingCar
-    metadata = {
-        "name": "halting_car_v0",
-        "render_modes": ["human", "rgb_array"],
-        "render_fps": 10 / 3,
-        "is_parallelizable": True,
-    }
+    metadata = env_metadata("halting_car_v0", HaltingCar)
 
 
 raw_env = HaltingCarEnv  # the unwrapped parallel environment
