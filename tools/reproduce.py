@@ -503,7 +503,9 @@ def execute(protocol: Protocol, out_dir: Path, jobs: int) -> dict:
     items = [(spec, str(data_path(out_dir, spec))) for spec in specs]
     data_status = run_parallel(ensure_dataset, items, jobs, "datasets")
     all_jobs = unique([j for s in protocol.settings for j in setting_jobs(protocol, s, out_dir)])
-    todo = [job for job in all_jobs if read_eval(job) is None]
+    # Seed-major order: an interrupted reproduction leaves whole seeds (every setting and
+    # variant), so a rerun with a smaller --seeds reports from the cache alone.
+    todo = sorted((job for job in all_jobs if read_eval(job) is None), key=lambda j: j.seed)
     outcomes = run_parallel(run_job, todo, jobs, "runs")
     counts = {"datasets_generated": data_status.count("generated"),
               "datasets_reused": data_status.count("reused"),
