@@ -257,8 +257,9 @@ def fake_eval(ade: dict, fde: dict, accuracy: float = 0.5) -> dict:
         cases = {names[r]: {"ade": scale * ade[r], "fde": scale * fde[r]} for r in names}
         return {"cases": cases, "overall": {"ade": scale * ade["major"], "fde": 0.0}}
 
-    acc = {"cases": {n: {"accuracy": accuracy} for n in names.values()},
-           "overall": {"accuracy": accuracy}}
+    acc = {"cases": {n: {"accuracy": accuracy, "mean_weight": accuracy / 2}
+                     for n in names.values()},
+           "overall": {"accuracy": accuracy, "mean_weight": accuracy / 2}}
     return {"major_case": "go", "case_names": ["stop", "go"], "main_agents": group(1.0),
             "all_agents": group(0.1), "attention_accuracy": acc, "train_seconds": 2.0}
 
@@ -277,6 +278,18 @@ def test_records_map_case_names_to_major_and_minor():
     assert record["main_agents"]["major"] == {"ade": 1.0, "fde": 2.0}
     assert record["main_agents"]["minor"] == {"ade": 2.0, "fde": 4.0}
     assert record["all_agents"]["minor"]["ade"] == pytest.approx(0.2)
+
+
+def test_attention_weight_is_aggregated_and_tabled():
+    aggregates = _report.aggregate(hand_records())
+    weight = aggregates["hc_go"]["ours"]["attention_weight"]["minor"]
+    assert weight == {"mean": 0.25, "std": 0.0, "n": 2}  # fake_eval: weight = accuracy / 2
+    names = {"major": "go", "minor": "stop"}
+    lines = _report.results_table(aggregates, "hc_go", ("ours", "const_vel"), "main_agents",
+                                  names).splitlines()
+    assert "attn. weight major" in lines[0]
+    assert lines[2].startswith("| Ours |") and lines[2].count("0.250 ± 0.000") == 2
+    assert lines[3].startswith("| Const-Vel |") and lines[3].count("n/a") == 4
 
 
 def test_bar_inputs_from_hand_made_runs():

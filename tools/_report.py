@@ -48,7 +48,8 @@ STATISTICS = ("mean +- sample standard deviation (ddof = 1) over training seeds;
 
 # ---------------------------------------------------------------------------------- statistics
 def make_record(setting: str, variant: str, seed: int, result: dict) -> dict:
-    """Flatten an eval.json into {group: {case: {ade, fde}}, attention_accuracy: {case: acc}}."""
+    """Flatten an eval.json into {group: {case: {ade, fde}}, attention_accuracy: {case: acc},
+    attention_weight: {case: mean weight on the labelled car}}."""
     names = {"major": result["major_case"]}
     names["minor"] = next(c for c in result["case_names"] if c != result["major_case"])
     record = {"setting": setting, "variant": variant, "seed": seed, "case_names": names,
@@ -61,6 +62,9 @@ def make_record(setting: str, variant: str, seed: int, result: dict) -> dict:
     record["attention_accuracy"] = {role: accuracy["cases"][name]["accuracy"]
                                     for role, name in names.items()}
     record["attention_accuracy"]["overall"] = accuracy["overall"]["accuracy"]
+    record["attention_weight"] = {role: accuracy["cases"][name].get("mean_weight")
+                                  for role, name in names.items()}
+    record["attention_weight"]["overall"] = accuracy["overall"].get("mean_weight")
     return record
 
 
@@ -98,7 +102,8 @@ def values(records: list[dict], setting: str, variant: str, key: tuple[str, ...]
 
 
 def aggregate(records: list[dict]) -> dict:
-    """{setting: {variant: {"seeds", group: {case: {metric: summary}}, attention_accuracy}}}."""
+    """{setting: {variant: {"seeds", group: {case: {metric: summary}}, attention_accuracy,
+    attention_weight}}}."""
     out: dict = {}
     for setting, variant in dict.fromkeys((r["setting"], r["variant"]) for r in records):
         entry = {"seeds": sum(r["setting"] == setting and r["variant"] == variant
@@ -107,9 +112,9 @@ def aggregate(records: list[dict]) -> dict:
             entry[group] = {case: {m: summarize(values(records, setting, variant,
                                                        (group, case, m))) for m in METRICS}
                             for case in (*CASES, "overall")}
-        entry["attention_accuracy"] = {
-            case: summarize(values(records, setting, variant, ("attention_accuracy", case)))
-            for case in (*CASES, "overall")}
+        for key in ("attention_accuracy", "attention_weight"):
+            entry[key] = {case: summarize(values(records, setting, variant, (key, case)))
+                          for case in (*CASES, "overall")}
         out.setdefault(setting, {})[variant] = entry
     return out
 
@@ -459,10 +464,11 @@ def table(header: list[str], rows: list[list[str]]) -> str:
 
 def results_table(aggregates: dict, setting: str, variants: tuple, group: str,
                   names: dict) -> str:
-    """Mean ± std of ADE/FDE per case (and attention accuracy for the headline group)."""
+    """Mean ± std of ADE/FDE per case (and, for the headline group, attention accuracy and the
+    mean attention weight on the labelled car)."""
     header = ["variant"] + [f"{c} ({names[c]}) {m.upper()}" for c in CASES for m in METRICS]
     if group == HEADLINE:
-        header += [f"attn. acc. {c}" for c in CASES]
+        header += [f"attn. {k} {c}" for k in ("acc.", "weight") for c in CASES]
     rows = []
     for variant in variants:
         entry = aggregates.get(setting, {}).get(variant)
@@ -471,7 +477,9 @@ def results_table(aggregates: dict, setting: str, variants: tuple, group: str,
         row = [LABELS[variant]] + [fmt(entry[group][c][m]) for c in CASES for m in METRICS]
         if group == HEADLINE:
             fixed = variant in ("average", "correct", "const_vel")  # nothing learned to score
-            row += ["n/a" if fixed else fmt(entry["attention_accuracy"][c], 2) for c in CASES]
+            row += ["n/a" if fixed else fmt(entry[key][c], digits)
+                    for key, digits in (("attention_accuracy", 2), ("attention_weight", 3))
+                    for c in CASES]
         rows.append(row + [str(entry["seeds"])])
     return table(header + ["runs"], rows)
 
@@ -641,9 +649,11 @@ NOTES = """Notes on the protocol:
 - Every trained run is evaluated from its `best.pt` (lowest validation ADE of the main cars) on
   the test split, predicting from the observed steps and feeding back the predicted means.
 - Attention accuracy: over the fed-back prediction steps inside the interaction period, the
-  share of (step, main car) pairs where the car's largest attention weight is on the labelled
-  car. It is not shown for Ours-Average and Ours-Correct, whose attention is fixed (the uniform
-  row's argmax is a tie that the lowest index wins); the raw numbers are in `results.json`."""
+  share of (step, main car) pairs where the labelled car has strictly the largest attention
+  weight of the main car; attention weight: the mean weight on the labelled car over the same
+  pairs (uniform attention over the 21 other cars gives 1/21 = 0.048). Neither is shown for
+  Ours-Average and Ours-Correct, whose attention is fixed (0 and 1 by construction); the raw
+  numbers are in `results.json`."""
 
 CLAIM_RULES = (f"Rules: **holds** = Ours has the lower mean and p < alpha (alpha = "
                f"{ALPHA_S_ATTN} against S-Attn, as in the paper; {ALPHA} otherwise); **not "
