@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -88,6 +89,21 @@ def test_const_vel_baseline_and_its_nan_attention(smoke, tmp_path: Path):
     assert result["attention_accuracy"]["overall"]["accuracy"] is None
     with np.load(tmp_path / "cv.npz") as npz:
         assert np.isnan(npz["attention"]).all() and set(npz.files) == NPZ_KEYS
+
+
+def test_closed_stdout_ends_quietly(smoke):
+    """`evaluate.py ... | head -0`: the reader is gone before the table is written."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        out = subprocess.run([sys.executable, str(REPO_ROOT / "tools" / "evaluate.py"),
+                              "--baseline", "const_vel", "--data", str(smoke["data"])],
+                             stdout=write_end, stderr=subprocess.PIPE, text=True, env=tool_env(),
+                             timeout=120)
+    finally:
+        os.close(write_end)
+    assert out.returncode == 1
+    assert "Traceback" not in out.stderr and "BrokenPipe" not in out.stderr
 
 
 @pytest.mark.parametrize(

@@ -7,6 +7,8 @@
   directory is missing.
 - `atomic_output(path)`: context manager yielding a temporary path beside `path`, renamed onto
   `path` on success and removed on any failure (Ctrl-C included).
+- `run_main(main, argv)`: run a tool's main; a reader that closed the pipe (`tool | head`) ends
+  it quietly with status 1 instead of a BrokenPipeError traceback.
 
 Importing this module also puts the repository root on sys.path, so `python tools/x.py` works from
 a checkout that was not pip-installed.
@@ -19,13 +21,27 @@ import contextlib
 import os
 import secrets
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import NoReturn
 
 _REPO_ROOT = str(Path(__file__).resolve().parents[1])
 if _REPO_ROOT not in sys.path:
     sys.path.insert(0, _REPO_ROOT)
+
+
+def run_main(main: Callable[[list[str] | None], None], argv: list[str] | None = None) -> None:
+    """Call main(argv); if stdout's reader went away, exit 1 without a traceback.
+
+    Python ignores SIGPIPE, so the write raises BrokenPipeError; stdout is pointed at devnull
+    so the interpreter's final flush does not raise a second time.
+    """
+    try:
+        main(argv)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        raise SystemExit(1) from None
 
 
 def fail(msg: str, code: int = 2) -> NoReturn:

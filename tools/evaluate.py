@@ -14,13 +14,12 @@ an .npz for tools/plot.py.
 from __future__ import annotations
 
 import json
-import sys
 import time
 from pathlib import Path
 
 import torch
 
-from _cli import ArgumentParser, atomic_output, check_output, fail, require_file
+from _cli import ArgumentParser, atomic_output, check_output, fail, require_file, run_main
 from predictor.baselines import BASELINES
 from predictor.data import TrajectoryDataset
 from predictor.evaluation import (
@@ -141,4 +140,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_main(main)
