@@ -652,8 +652,8 @@ NOTES = """Notes on the protocol:
   share of (step, main car) pairs where the labelled car has strictly the largest attention
   weight of the main car; attention weight: the mean weight on the labelled car over the same
   pairs (uniform attention over the 21 other cars gives 1/21 = 0.048). Neither is shown for
-  Ours-Average and Ours-Correct, whose attention is fixed (0 and 1 by construction); the raw
-  numbers are in `results.json`."""
+  Ours-Average and Ours-Correct, whose attention is fixed (by construction accuracy 0 and
+  weight 1/21 for Average, 1 and 1 for Correct); the raw numbers are in `results.json`."""
 
 CLAIM_RULES = (f"Rules: **holds** = Ours has the lower mean and p < alpha (alpha = "
                f"{ALPHA_S_ATTN} against S-Attn, as in the paper; {ALPHA} otherwise); **not "
