@@ -83,6 +83,15 @@ def test_quick_run_writes_markdown_with_tables(quick):
     assert "15/30 = 0.5" in text
 
 
+def test_training_invocations_are_logged_and_reported(quick):
+    lines = (quick["cache"] / "invocations.jsonl").read_text().splitlines()
+    first, second = (json.loads(line) for line in lines)  # the refused run trained nothing
+    assert first["runs"] == len(quick["before"])  # every job, const_vel's evaluations included
+    assert second["runs"] == 1 and "--quick" in second["command"]
+    assert 0 < second["seconds"] < first["seconds"]
+    assert "Training invocations logged in the cache: 2," in quick["results"].read_text()
+
+
 def test_quick_run_writes_the_figures(quick):
     figures = quick["results"].parent / "results"
     names = {p.name for p in figures.glob("*.png")}

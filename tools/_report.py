@@ -416,6 +416,7 @@ class ReportInput:
     counts: dict  # datasets/runs generated, trained, resumed, reused, failed
     jobs: int
     seconds: float  # wall time of the reproduction before the report
+    history: list = ()  # invocations that trained runs into the cache (reproduce.log_invocation)
 
 
 def machine_info(jobs: int) -> dict:
@@ -598,6 +599,7 @@ def render(report: ReportInput, context: dict, aggregates: dict, tests: dict, in
         f"- Date: {context['date']}",
         f"- Wall time: {report.seconds / 60:.1f} min for this invocation; the training time "
         f"recorded in all runs sums to {compute_h:.2f} h (one thread each)",
+        history_line(report.history),
         f"- Machine: {machine['cores']} cores, {machine['cpu_model']}; torch "
         f"{machine['torch']}, {machine['torch_threads_per_job']} torch thread per job, "
         f"{machine['jobs']} parallel jobs; Python {machine['python']}",
@@ -662,6 +664,17 @@ CLAIM_RULES = (f"Rules: **holds** = Ours has the lower mean and p < alpha (alpha
                "(difference relative to Correct). Size study: the mean margin NonSmooth − Ours "
                "should fall from the smallest to the largest training set (**partly**: only "
                "smallest > largest).")
+
+
+def history_line(history) -> str:
+    """Markdown bullet of the invocations that trained runs into the cache (wall time)."""
+    if not history:
+        return "- Training invocations logged in the cache: none"
+    total = sum(entry["seconds"] for entry in history) / 60
+    items = "; ".join(f"{entry['date']}: {entry['seconds'] / 60:.1f} min, "
+                      f"{entry['runs']} runs, `{entry['command']}`" for entry in history)
+    return (f"- Training invocations logged in the cache: {len(history)}, {total:.1f} min wall "
+            f"in all ({items})")
 
 
 def settings_table(report: ReportInput, info: dict) -> str:

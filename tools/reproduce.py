@@ -46,6 +46,7 @@ cores. `--settings main` (100 runs) ~6 h; `--quick` ~1 min.
 from __future__ import annotations
 
 import contextlib
+import datetime
 import hashlib
 import io
 import json
@@ -71,6 +72,7 @@ DATA_SEED = 0  # one dataset per setting, fixed: seeds vary only the training
 NUM_TEST = 50  # test trajectories per case (paper)
 PAPER_EPOCHS, PAPER_SEEDS = 200, 10
 QUICK_EPOCHS, QUICK_SEEDS, QUICK_NUM_TEST = 1, 2, 5
+INVOCATION_LOG = "invocations.jsonl"  # in OUT_DIR: date, command, wall seconds, jobs run
 QUICK_MAX_MAJOR = 10  # --quick shrinks every setting to at most 10 major trajectories
 QUICK_MIN_MINOR = 2
 
@@ -518,6 +520,21 @@ def execute(protocol: Protocol, out_dir: Path, jobs: int) -> dict:
     return counts
 
 
+def log_invocation(out_dir: Path, command: str, seconds: float, counts: dict) -> list[dict]:
+    """Append this invocation to OUT_DIR/invocations.jsonl if it trained any run; return every
+    logged invocation, so a report rebuilt from the cache can still give the wall time spent."""
+    path = out_dir / INVOCATION_LOG
+    trained = counts["trained"] + counts["resumed"]  # jobs run (const_vel: evaluated)
+    if trained:
+        entry = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                 "command": command, "seconds": round(seconds, 1), "runs": trained}
+        with open(path, "a") as stream:
+            stream.write(json.dumps(entry) + "\n")
+    if not path.is_file():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
 def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt  # SIGTERM stops like Ctrl-C
 
@@ -535,13 +552,14 @@ def main(argv: list[str] | None = None) -> None:
         out_dir.mkdir(parents=True, exist_ok=True)
         results.parent.mkdir(parents=True, exist_ok=True)
         counts = execute(protocol, out_dir, args.jobs)
+        history = log_invocation(out_dir, command, time.perf_counter() - started, counts)
         records = collect(protocol, out_dir)
         paths = {s.name: str(data_path(out_dir, data_spec(protocol, s)))
                  for s in protocol.settings}
         report = _report.ReportInput(protocol=protocol, records=records, data_paths=paths,
                                      scene_files=scene_files(protocol, out_dir),
                                      command=command, counts=counts, jobs=args.jobs,
-                                     seconds=time.perf_counter() - started)
+                                     seconds=time.perf_counter() - started, history=history)
         figures = _report.write_report(report, results)
     except KeyboardInterrupt:
         fail("interrupted; finished runs are cached: run the same command again to resume",
