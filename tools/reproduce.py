@@ -29,9 +29,10 @@ every generator input) and `runs/<stem>/<variant>/seed<k>_ep<E>_<hash>/` per run
 files plus `eval.json`, written last and atomically, and for seed 0 of ours and s_attn
 `scenes.npz`, the predictions of the figure scenes). A run with its eval.json is reused; a run
 with last.pt resumes (bit-identical to an uninterrupted one); Ctrl-C stops cleanly and a rerun
-of the same command continues. Identical inputs share one cache entry. The keys hash the
-scenario, model and training configurations (a changed default starts new runs) but not the
-code: delete the cache after changing how experts, model or training behave.
+of the same command continues. Identical inputs share one cache entry. `invocations.jsonl`
+logs every invocation that ran jobs (date, command, wall seconds), for the report's wall time.
+The keys hash the scenario, model and training configurations (a changed default starts new
+runs) but not the code: delete the cache after changing how experts, model or training behave.
 
 Expected wall time, measured on the 2-core AMD EPYC development VM (1 torch thread, other work
 running; epoch times include validation): the variants with the sequence loss (ours,
@@ -40,7 +41,8 @@ nonsmooth, average, correct) cost ~0.046 s per training scene and epoch, s_attn 
 ~2.0 s). A 200-epoch run thus takes ~8 min (ours) / ~3.5 min (s_attn) on a ratio-0.3 setting and
 ~16 / ~7 min on dm_30+100; evaluation takes seconds. The seven settings hold 378 training scenes
 in all, so the full protocol (350 runs) is ~43 CPU-hours: ~22-26 h with --jobs 2 on two free
-cores. `--settings main` (100 runs) ~6 h; `--quick` ~1 min.
+cores. `--settings main` (100 runs) ~6 h; `--quick` ~1 min. Measured: `--settings main --seeds 5
+--epochs 100 --jobs 2` took 94 min (52 runs).
 """
 
 from __future__ import annotations
