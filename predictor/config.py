@@ -171,8 +171,9 @@ def _build(cls: type, values: dict[str, Any], complete: bool = False) -> Any:
         raise ValueError(f"unknown {cls.__name__} field(s): {', '.join(unknown)}")
     missing = sorted(names - set(values))
     if complete and missing:
-        raise ValueError(f"{cls.__name__} lacks field(s) {', '.join(missing)} (written by an "
-                         "older version?)")
+        raise ValueError(
+            f"{cls.__name__} lacks field(s) {', '.join(missing)} (written by an older version?)"
+        )
     return cls(**values)
 
 

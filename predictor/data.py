@@ -106,8 +106,10 @@ class TrajectoryDataset(Dataset):
         data = read_split(path, split)
         if case is not None:
             if case not in self.meta.case_names:
-                raise FormatError(f"{self.path}: unknown case {case!r}; valid cases: "
-                                  f"{', '.join(self.meta.case_names)}")
+                raise FormatError(
+                    f"{self.path}: unknown case {case!r}; valid cases: "
+                    f"{', '.join(self.meta.case_names)}"
+                )
             data = data.select_case(self.meta.case_names.index(case))
         self.case = case
         self.data: TrajectorySet = data  # numpy arrays, e.g. for plots and evaluation
@@ -122,8 +124,7 @@ class TrajectoryDataset(Dataset):
         if not -size <= index < size:
             raise IndexError(f"index {index} out of range for {size} scenes")
         index = index % size
-        return Batch(**{f.name: _slice(getattr(self._all, f.name), index)
-                        for f in fields(Batch)})
+        return Batch(**{f.name: _slice(getattr(self._all, f.name), index) for f in fields(Batch)})
 
     def all(self) -> Batch:
         """Every scene of the dataset as one Batch, in file order."""
@@ -134,9 +135,7 @@ def _slice(tensor: torch.Tensor | None, index: int) -> torch.Tensor | None:
     return None if tensor is None else tensor[index : index + 1]
 
 
-def make_loader(
-    dataset: Dataset, batch_size: int, shuffle: bool, seed: int = 0
-) -> DataLoader:
+def make_loader(dataset: Dataset, batch_size: int, shuffle: bool, seed: int = 0) -> DataLoader:
     """A DataLoader yielding `Batch`es; shuffling is reproducible from `seed` alone.
 
     Two loaders made with the same seed give the same sequence of batches; successive epochs of
@@ -147,5 +146,12 @@ def make_loader(
     generator = torch.Generator()
     generator.manual_seed(seed)
     shuffle = shuffle and len(dataset) > 0  # torch's RandomSampler rejects empty datasets
-    return DataLoader(dataset, batch_size=batch_size, shuffle=shuffle, generator=generator,
-                      num_workers=0, collate_fn=collate_batch, drop_last=False)
+    return DataLoader(
+        dataset,
+        batch_size=batch_size,
+        shuffle=shuffle,
+        generator=generator,
+        num_workers=0,
+        collate_fn=collate_batch,
+        drop_last=False,
+    )

@@ -136,9 +136,16 @@ def save_predictions(
         _savez(stream, predictions, batch, roles, num_observed, dt, case_names, role_names)
 
 
-def _savez(stream, predictions: Predictions, batch: Batch, roles: torch.Tensor,
-           num_observed: int, dt: float, case_names: tuple[str, ...],
-           role_names: tuple[str, ...]) -> None:
+def _savez(
+    stream,
+    predictions: Predictions,
+    batch: Batch,
+    roles: torch.Tensor,
+    num_observed: int,
+    dt: float,
+    case_names: tuple[str, ...],
+    role_names: tuple[str, ...],
+) -> None:
     np.savez(
         stream,
         pred_mean=predictions.pred_mean.astype(np.float32),

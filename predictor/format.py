@@ -40,8 +40,19 @@ _FIELDS: dict[str, tuple[np.dtype, tuple[str | int, ...]]] = {
     "roles": (np.dtype(np.int8), ("n", "N")),
 }
 _ROOT_ATTRS = (
-    "format", "schema_version", "scenario", "dt", "num_observed", "num_predicted", "case_names",
-    "major_case", "role_names", "state_names", "action_names", "config", "package_version",
+    "format",
+    "schema_version",
+    "scenario",
+    "dt",
+    "num_observed",
+    "num_predicted",
+    "case_names",
+    "major_case",
+    "role_names",
+    "state_names",
+    "action_names",
+    "config",
+    "package_version",
 )
 
 
@@ -82,12 +93,18 @@ class DatasetMeta:
     def validate(self, source: str = "") -> None:
         """Raise FormatError if a field is out of its documented range."""
         if self.schema_version != SCHEMA_VERSION:
-            raise _fail(source, f"schema_version is {self.schema_version!r}, this reader "
-                                f"supports only {SCHEMA_VERSION}")
+            raise _fail(
+                source,
+                f"schema_version is {self.schema_version!r}, this reader "
+                f"supports only {SCHEMA_VERSION}",
+            )
         if not isinstance(self.scenario, str) or not self.scenario:
             raise _fail(source, "scenario must be a non-empty string")
-        if not (isinstance(self.dt, (int, float, np.floating)) and math.isfinite(self.dt)
-                and self.dt > 0):
+        if not (
+            isinstance(self.dt, (int, float, np.floating))
+            and math.isfinite(self.dt)
+            and self.dt > 0
+        ):
             raise _fail(source, f"dt must be a positive finite number of seconds, got {self.dt!r}")
         for name in ("num_observed", "num_predicted"):
             value = getattr(self, name)
@@ -100,8 +117,9 @@ class DatasetMeta:
             if len(set(names)) != len(names):
                 raise _fail(source, f"{name} has duplicates: {list(names)}")
         if self.major_case and self.major_case not in self.case_names:
-            raise _fail(source, f"major_case {self.major_case!r} is not one of "
-                                f"{list(self.case_names)}")
+            raise _fail(
+                source, f"major_case {self.major_case!r} is not one of {list(self.case_names)}"
+            )
         try:
             json.dumps(self.config, allow_nan=False)
         except (TypeError, ValueError) as err:
@@ -149,25 +167,34 @@ class TrajectorySet:
         self._check_shapes(source)
         n, steps, agents = self.n, self.num_steps, self.num_agents
         if meta is not None and steps != meta.num_steps:
-            raise _fail(source, f"T={steps} but num_observed + num_predicted = "
-                                f"{meta.num_observed} + {meta.num_predicted} = {meta.num_steps}")
+            raise _fail(
+                source,
+                f"T={steps} but num_observed + num_predicted = "
+                f"{meta.num_observed} + {meta.num_predicted} = {meta.num_steps}",
+            )
         if n == 0:
             return
         if not np.isfinite(self.states[self.valid]).all():
             raise _fail(source, "states are not finite where valid")
         bad = (self.attention < -1) | (self.attention >= agents)
         if bad.any():
-            raise _fail(source, f"attention labels must be -1 or an agent index in [0, {agents}), "
-                                f"found {int(self.attention[bad][0])}")
-        limits = {"case": None if meta is None else len(meta.case_names),
-                  "roles": None if meta is None else len(meta.role_names)}
+            raise _fail(
+                source,
+                f"attention labels must be -1 or an agent index in [0, {agents}), "
+                f"found {int(self.attention[bad][0])}",
+            )
+        limits = {
+            "case": None if meta is None else len(meta.case_names),
+            "roles": None if meta is None else len(meta.role_names),
+        }
         for name, limit in limits.items():
             values = getattr(self, name)
             if values.size and values.min() < 0:
                 raise _fail(source, f"{name} has negative index {int(values.min())}")
             if limit is not None and values.size and values.max() >= limit:
-                raise _fail(source, f"{name} index {int(values.max())} out of range for "
-                                    f"{limit} names")
+                raise _fail(
+                    source, f"{name} index {int(values.max())} out of range for {limit} names"
+                )
 
     def _check_shapes(self, source: str) -> None:
         sizes: dict[str, int] = {}
@@ -178,16 +205,23 @@ class TrajectorySet:
             if array.dtype != dtype:
                 raise _fail(source, f"{name} has dtype {array.dtype}, expected {dtype}")
             if array.ndim != len(shape):
-                raise _fail(source, f"{name} has shape {array.shape}, expected "
-                                    f"{len(shape)} dimensions {_shape_text(shape)}")
+                raise _fail(
+                    source,
+                    f"{name} has shape {array.shape}, expected "
+                    f"{len(shape)} dimensions {_shape_text(shape)}",
+                )
             for size, expected in zip(array.shape, shape, strict=True):
                 if isinstance(expected, int):
                     if size != expected:
-                        raise _fail(source, f"{name} has shape {array.shape}, "
-                                            f"expected {_shape_text(shape)}")
+                        raise _fail(
+                            source, f"{name} has shape {array.shape}, expected {_shape_text(shape)}"
+                        )
                 elif sizes.setdefault(expected, size) != size:
-                    raise _fail(source, f"{name} has shape {array.shape}, inconsistent with "
-                                        f"{expected}={sizes[expected]} of states")
+                    raise _fail(
+                        source,
+                        f"{name} has shape {array.shape}, inconsistent with "
+                        f"{expected}={sizes[expected]} of states",
+                    )
 
     def subset(self, indices: np.ndarray | Sequence[int] | slice) -> TrajectorySet:
         """Trajectories picked by integer indices, a boolean mask or a slice (copies)."""
@@ -237,10 +271,12 @@ class TrajectorySet:
     def empty(num_steps: int, num_agents: int) -> TrajectorySet:
         """A set of zero trajectories with the given T and N."""
         sizes = {"n": 0, "T": num_steps, "N": num_agents}
-        return TrajectorySet(**{
-            name: np.zeros(tuple(sizes.get(s, s) for s in shape), dtype=dtype)
-            for name, (dtype, shape) in _FIELDS.items()
-        })
+        return TrajectorySet(
+            **{
+                name: np.zeros(tuple(sizes.get(s, s) for s in shape), dtype=dtype)
+                for name, (dtype, shape) in _FIELDS.items()
+            }
+        )
 
 
 def _shape_text(shape: tuple[str | int, ...]) -> str:
@@ -314,8 +350,14 @@ def _write_split(group: h5py.Group, data: TrajectorySet) -> None:
     group.attrs["count"] = np.int64(data.n)
     for name, array in data.arrays().items():
         if data.n > 0:  # one trajectory per chunk, gzip
-            group.create_dataset(name, data=array, chunks=(1, *array.shape[1:]),
-                                 compression="gzip", compression_opts=4, shuffle=True)
+            group.create_dataset(
+                name,
+                data=array,
+                chunks=(1, *array.shape[1:]),
+                compression="gzip",
+                compression_opts=4,
+                shuffle=True,
+            )
         else:
             group.create_dataset(name, data=array)
 
@@ -382,8 +424,11 @@ class _Reader:
             raise _fail(self.source, "missing root attribute 'schema_version'")
         version = self._number(attrs, "schema_version", int)
         if version != SCHEMA_VERSION:
-            raise _fail(self.source, f"schema_version {version} is not supported "
-                                     f"(this reader supports {SCHEMA_VERSION})")
+            raise _fail(
+                self.source,
+                f"schema_version {version} is not supported "
+                f"(this reader supports {SCHEMA_VERSION})",
+            )
         missing = [name for name in _ROOT_ATTRS if name not in attrs]
         if missing:
             raise _fail(self.source, f"missing root attribute(s) {missing}")
@@ -480,8 +525,8 @@ def summarize(path: str | os.PathLike) -> str:
         f"dt={meta.dt:g} s, {steps * meta.dt:g} s per trajectory",
         f"agents:    N={'/'.join(str(a) for a in agents)} slots; "
         f"roles: {', '.join(meta.role_names)}",
-        f"cases:     {', '.join(cases)}" + (f" (major: {meta.major_case})" if meta.major_case
-                                             else ""),
+        f"cases:     {', '.join(cases)}"
+        + (f" (major: {meta.major_case})" if meta.major_case else ""),
         "",
         "split   " + "".join(f"{c:>10}" for c in [*cases, "total"]) + "   valid agents/step",
     ]

@@ -292,9 +292,7 @@ class SmoothAttentionPredictor(nn.Module):
             current = gaussian.rsample() if sample else gaussian.mean  # (B, N, 2)
             current = torch.where(present.unsqueeze(-1), current, torch.zeros_like(current))
             labels = None if steps.labels is None else steps.labels[t : t + 1]  # (1, B, N)
-            block = self._run(
-                current[None], prev[None], present[None], steps.origin, labels, state
-            )
+            block = self._run(current[None], prev[None], present[None], steps.origin, labels, state)
             gaussian = Gaussian2D(block.gaussian.mean[0], block.gaussian.tril[0])  # (B, N, .)
             gaussians.append(gaussian)
             attentions.append(block.attention[0])

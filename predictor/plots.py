@@ -23,8 +23,14 @@ from predictor.format import DatasetMeta, TrajectorySet
 ROAD_COLOR = "#ececec"  # axes background: the road area
 TRUE_COLOR = "#8c8c8c"  # ground-truth lines
 DISTRACTOR_COLOR = "#a6a6a6"
-_NAMED_COLORS = {"green": "#2ca02c", "brown": "#8c564b", "blue": "#1f77b4", "red": "#d62728",
-                 "orange": "#ff7f0e", "purple": "#9467bd"}
+_NAMED_COLORS = {
+    "green": "#2ca02c",
+    "brown": "#8c564b",
+    "blue": "#1f77b4",
+    "red": "#d62728",
+    "orange": "#ff7f0e",
+    "purple": "#9467bd",
+}
 _PALETTE = ("#1f77b4", "#d62728", "#ff7f0e", "#9467bd", "#17becf")
 _MIN_DOT, _MAX_DOT = 3.0, 40.0  # scatter marker areas [pt^2] at the first and last step
 
@@ -53,8 +59,15 @@ def _dot_sizes(steps: np.ndarray, num_steps: int) -> np.ndarray:
     return _MIN_DOT + (_MAX_DOT - _MIN_DOT) * steps / max(num_steps - 1, 1)
 
 
-def _draw_dots(ax: Axes, xy: np.ndarray, mask: np.ndarray, steps: np.ndarray, roles: np.ndarray,
-               role_names: tuple[str, ...], num_steps: int) -> None:
+def _draw_dots(
+    ax: Axes,
+    xy: np.ndarray,
+    mask: np.ndarray,
+    steps: np.ndarray,
+    roles: np.ndarray,
+    role_names: tuple[str, ...],
+    num_steps: int,
+) -> None:
     """Scatter positions `xy` (T', N, 2) where `mask` (T', N); `steps` (T',) are the time steps.
 
     One scatter call per role; distractors below main cars.
@@ -64,9 +77,15 @@ def _draw_dots(ax: Axes, xy: np.ndarray, mask: np.ndarray, steps: np.ndarray, ro
         name = role_names[role]
         select = mask & (roles == role)[None, :]  # (T', N)
         step_index = np.broadcast_to(steps[:, None], select.shape)[select]
-        ax.scatter(xy[select][:, 0], xy[select][:, 1], s=_dot_sizes(step_index, num_steps),
-                   color=role_color(name, role), edgecolors="none",
-                   alpha=0.9 if _is_main(name) else 0.6, zorder=3 if _is_main(name) else 2)
+        ax.scatter(
+            xy[select][:, 0],
+            xy[select][:, 1],
+            s=_dot_sizes(step_index, num_steps),
+            color=role_color(name, role),
+            edgecolors="none",
+            alpha=0.9 if _is_main(name) else 0.6,
+            zorder=3 if _is_main(name) else 2,
+        )
 
 
 def _style_road_axes(ax: Axes, xlabel: bool = True, ylabel: bool = True) -> None:
@@ -79,10 +98,17 @@ def _style_road_axes(ax: Axes, xlabel: bool = True, ylabel: bool = True) -> None
 
 
 def _role_legend(fig: Figure, role_names: tuple[str, ...]) -> None:
-    handles = [Line2D([], [], marker="o", linestyle="", color=role_color(name, i), label=name)
-               for i, name in enumerate(role_names)]
-    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles),
-               fontsize="small", frameon=False)
+    handles = [
+        Line2D([], [], marker="o", linestyle="", color=role_color(name, i), label=name)
+        for i, name in enumerate(role_names)
+    ]
+    fig.legend(
+        handles=handles,
+        loc="outside lower center",
+        ncols=len(handles),
+        fontsize="small",
+        frameon=False,
+    )
 
 
 def new_figure(width: float, height: float) -> Figure:
@@ -122,12 +148,20 @@ def plot_samples(data: TrajectorySet, meta: DatasetMeta, num_per_case: int = 4) 
                     ax.set_title(f"{case_name}: no trajectories")
                 continue
             i = picked[row]
-            _draw_dots(ax, data.states[i, :, :, :2], data.valid[i], steps, data.roles[i],
-                       meta.role_names, data.num_steps)
+            _draw_dots(
+                ax,
+                data.states[i, :, :, :2],
+                data.valid[i],
+                steps,
+                data.roles[i],
+                meta.role_names,
+                data.num_steps,
+            )
             _style_road_axes(ax, xlabel=row == len(picked) - 1, ylabel=column == 0)
             ax.set_title(f"{case_name}, seed {int(data.seed[i])}", fontsize="small")
-    fig.suptitle(f"{meta.scenario}: sample trajectories (dot size grows with time, "
-                 f"dt = {meta.dt:g} s)")
+    fig.suptitle(
+        f"{meta.scenario}: sample trajectories (dot size grows with time, dt = {meta.dt:g} s)"
+    )
     _role_legend(fig, meta.role_names)
     return fig
 
@@ -159,9 +193,14 @@ class Predictions:
 
 
 _PRED_SHAPES = {  # key -> expected shape in terms of n, T, P (= T_pred), N
-    "pred_mean": ("n", "P", "N", 2), "true_xy": ("n", "T", "N", 2), "valid": ("n", "T", "N"),
-    "case": ("n",), "roles": ("n", "N"), "attention": ("n", "T-1", "N", "N"),
-    "attention_label": ("n", "T", "N"), "interaction": ("n", "T"),
+    "pred_mean": ("n", "P", "N", 2),
+    "true_xy": ("n", "T", "N", 2),
+    "valid": ("n", "T", "N"),
+    "case": ("n",),
+    "roles": ("n", "N"),
+    "attention": ("n", "T-1", "N", "N"),
+    "attention_label": ("n", "T", "N"),
+    "interaction": ("n", "T"),
 }
 
 
@@ -182,17 +221,25 @@ def load_predictions(path: str | os.PathLike) -> Predictions:
     if missing:
         raise PlotInputError(f"{path}: missing arrays {missing}")
     n, steps, agents = arrays["true_xy"].shape[:3] if arrays["true_xy"].ndim == 4 else (0, 0, 0)
-    sizes = {"n": n, "T": steps, "T-1": steps - 1, "N": agents,
-             "P": arrays["pred_mean"].shape[1] if arrays["pred_mean"].ndim == 4 else -1}
+    sizes = {
+        "n": n,
+        "T": steps,
+        "T-1": steps - 1,
+        "N": agents,
+        "P": arrays["pred_mean"].shape[1] if arrays["pred_mean"].ndim == 4 else -1,
+    }
     for key, shape in _PRED_SHAPES.items():
         expected = tuple(sizes.get(s, s) for s in shape)
         if arrays[key].shape != expected:
-            raise PlotInputError(f"{path}: {key} has shape {arrays[key].shape}, expected "
-                                 f"{expected}")
+            raise PlotInputError(
+                f"{path}: {key} has shape {arrays[key].shape}, expected {expected}"
+            )
     num_observed = int(arrays["num_observed"])
     if num_observed < 1 or num_observed + sizes["P"] > steps:
-        raise PlotInputError(f"{path}: num_observed={num_observed} with {sizes['P']} predicted "
-                             f"steps does not fit T={steps}")
+        raise PlotInputError(
+            f"{path}: num_observed={num_observed} with {sizes['P']} predicted "
+            f"steps does not fit T={steps}"
+        )
     return Predictions(
         **{key: arrays[key] for key in _PRED_SHAPES},
         case_names=tuple(str(s) for s in arrays["case_names"]),
@@ -220,15 +267,25 @@ def plot_predictions(pred: Predictions, index: int) -> Figure:
     fig = new_figure(10.0, 3.6)
     ax = fig.subplots()
     ax.plot(true_xy[:, :, 0], true_xy[:, :, 1], color=TRUE_COLOR, linewidth=1.0, zorder=1)
-    ax.plot(true_xy[pred.num_observed - 1, :, 0], true_xy[pred.num_observed - 1, :, 1], "|",
-            color="black", markersize=8, zorder=4)
+    ax.plot(
+        true_xy[pred.num_observed - 1, :, 0],
+        true_xy[pred.num_observed - 1, :, 1],
+        "|",
+        color="black",
+        markersize=8,
+        zorder=4,
+    )
     pred_steps = pred.num_observed + np.arange(pred.pred_mean.shape[1])  # (T_pred,)
     mask = pred.valid[index][pred_steps] & np.isfinite(pred.pred_mean[index]).all(axis=-1)
-    _draw_dots(ax, pred.pred_mean[index], mask, pred_steps, pred.roles[index],
-               pred.role_names, steps)
+    _draw_dots(
+        ax, pred.pred_mean[index], mask, pred_steps, pred.roles[index], pred.role_names, steps
+    )
     _style_road_axes(ax)
-    ax.set_title(f"scene {index} ({_case_name(pred, index)}): predicted means (dots, size grows "
-                 f"with time) vs truth (grey lines); | = last observed step", fontsize="small")
+    ax.set_title(
+        f"scene {index} ({_case_name(pred, index)}): predicted means (dots, size grows "
+        f"with time) vs truth (grey lines); | = last observed step",
+        fontsize="small",
+    )
     _role_legend(fig, pred.role_names)
     return fig
 
@@ -257,29 +314,56 @@ def plot_attention(pred: Predictions, index: int, agent: int, target: int) -> Fi
         raise PlotInputError("agent and target must differ")
     theta = pred.attention[index, :, agent, target]  # (T-1,)
     if not np.isfinite(theta).any():
-        raise PlotInputError("the predictions file has no attention for this scene (NaN), e.g. "
-                             "from a model without attention such as const_vel")
+        raise PlotInputError(
+            "the predictions file has no attention for this scene (NaN), e.g. "
+            "from a model without attention such as const_vel"
+        )
     time = np.arange(theta.shape[0]) * pred.dt  # (T-1,) [s]
     roles = pred.roles[index]
     fig = new_figure(8.0, 3.2)
     ax = fig.subplots()
     for k, (first, last) in enumerate(_runs(pred.interaction[index])):
-        ax.axvspan((first - 0.5) * pred.dt, (last + 0.5) * pred.dt, color="#f2d7a6", alpha=0.6,
-                   zorder=0, label="interaction period" if k == 0 else None)
+        ax.axvspan(
+            (first - 0.5) * pred.dt,
+            (last + 0.5) * pred.dt,
+            color="#f2d7a6",
+            alpha=0.6,
+            zorder=0,
+            label="interaction period" if k == 0 else None,
+        )
     label_on = (pred.attention_label[index, :-1, agent] == target).astype(float)  # (T-1,)
-    ax.step(time, label_on, where="mid", color="black", linestyle="--", linewidth=1.0,
-            label="ground truth", zorder=2)
+    ax.step(
+        time,
+        label_on,
+        where="mid",
+        color="black",
+        linestyle="--",
+        linewidth=1.0,
+        label="ground truth",
+        zorder=2,
+    )
     target_role = pred.role_names[roles[target]]
-    ax.plot(time, theta, marker="o", markersize=3, color=role_color(target_role, roles[target]),
-            label=f"attention on agent {target} ({target_role})", zorder=3)
-    ax.axvline((pred.num_observed - 1) * pred.dt, color="black", linewidth=1.0,
-               label="last observed step")
+    ax.plot(
+        time,
+        theta,
+        marker="o",
+        markersize=3,
+        color=role_color(target_role, roles[target]),
+        label=f"attention on agent {target} ({target_role})",
+        zorder=3,
+    )
+    ax.axvline(
+        (pred.num_observed - 1) * pred.dt, color="black", linewidth=1.0, label="last observed step"
+    )
     ax.set_xlim(-0.5 * pred.dt, (theta.shape[0] - 0.5) * pred.dt)
     ax.set_ylim(-0.05, 1.05)
     ax.set_xlabel("time [s]")
     ax.set_ylabel("attention")
     agent_role = pred.role_names[roles[agent]]
-    ax.set_title(f"scene {index} ({_case_name(pred, index)}): attention of agent {agent} "
-                 f"({agent_role}) on agent {target}", fontsize="small")
+    ax.set_title(
+        f"scene {index} ({_case_name(pred, index)}): attention of agent {agent} "
+        f"({agent_role}) on agent {target}",
+        fontsize="small",
+    )
     ax.legend(fontsize="small", loc="upper left")
     return fig

@@ -80,8 +80,12 @@ def validation_scores(
     """ADE/FDE [m] of the fed-back means for the main agents and all agents."""
     result = score(predict_model(model, batch, num_observed), batch, num_observed, case_names)
     main, every = result["main_agents"]["overall"], result["all_agents"]["overall"]
-    return {"ade_main": main["ade"], "fde_main": main["fde"],
-            "ade_all": every["ade"], "fde_all": every["fde"]}
+    return {
+        "ade_main": main["ade"],
+        "fde_main": main["fde"],
+        "ade_all": every["ade"],
+        "fde_all": every["fde"],
+    }
 
 
 def selection_score(val: dict[str, float | None]) -> float | None:
@@ -113,8 +117,15 @@ def set_rng_state(state: dict, loader_generator: torch.Generator) -> None:
     torch.set_rng_state(state["torch"])
     loader_generator.set_state(state["loader"])
     numpy = state["numpy"]
-    np.random.set_state((numpy["name"], numpy["keys"].numpy().astype(np.uint32), numpy["pos"],
-                         numpy["has_gauss"], numpy["cached_gaussian"]))
+    np.random.set_state(
+        (
+            numpy["name"],
+            numpy["keys"].numpy().astype(np.uint32),
+            numpy["pos"],
+            numpy["has_gauss"],
+            numpy["cached_gaussian"],
+        )
+    )
     version, internal, gauss = state["python"]
     random.setstate((version, tuple(internal), gauss))
 
@@ -159,8 +170,10 @@ def prepare_out_dir(out_dir: Path, resume: bool, overwrite: bool) -> None:
         return
     if out_dir.is_dir() and any(out_dir.iterdir()):
         if not overwrite:
-            raise RunError(f"{out_dir} is not empty; pass --resume to continue the run there "
-                           "or --overwrite to start over")
+            raise RunError(
+                f"{out_dir} is not empty; pass --resume to continue the run there "
+                "or --overwrite to start over"
+            )
         for name in RUN_FILES + ("eval.json",):
             (out_dir / name).unlink(missing_ok=True)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -197,8 +210,9 @@ class RunState:
     history_tail: dict = field(default_factory=dict)  # last epoch's record
 
 
-def checkpoint_dict(state: RunState, model_cfg: ModelConfig, train_cfg: TrainConfig,
-                    data: dict, full: bool) -> dict:
+def checkpoint_dict(
+    state: RunState, model_cfg: ModelConfig, train_cfg: TrainConfig, data: dict, full: bool
+) -> dict:
     """Checkpoint contents (plain types and tensors only)."""
     out = {
         "format": CHECKPOINT_FORMAT,
@@ -218,8 +232,9 @@ def checkpoint_dict(state: RunState, model_cfg: ModelConfig, train_cfg: TrainCon
     return out
 
 
-def build_state(model_cfg: ModelConfig, train_cfg: TrainConfig, train_set: TrajectoryDataset
-                ) -> RunState:
+def build_state(
+    model_cfg: ModelConfig, train_cfg: TrainConfig, train_set: TrajectoryDataset
+) -> RunState:
     """Seeded model, optimizer and loader of a fresh run."""
     seed_everything(train_cfg.seed)
     model = SmoothAttentionPredictor(model_cfg)
@@ -238,8 +253,13 @@ def restore_state(state: RunState, checkpoint: dict) -> None:
     set_rng_state(checkpoint["rng"], state.loader.generator)
 
 
-def run_epoch(state: RunState, num_observed: int, config: TrainConfig, bar: tqdm,
-              step_callback: Callable[[int], None] | None) -> dict[str, float]:
+def run_epoch(
+    state: RunState,
+    num_observed: int,
+    config: TrainConfig,
+    bar: tqdm,
+    step_callback: Callable[[int], None] | None,
+) -> dict[str, float]:
     """One pass over the training loader; returns the mean of each loss term."""
     sums: dict[str, float] = {}
     steps = 0
@@ -271,9 +291,11 @@ class TrainResult:
         """One-line summary."""
         best = "n/a" if self.best_score is None else f"{self.best_score:.3f} m"
         loss = "n/a" if self.final_loss is None else f"{self.final_loss:.4f}"
-        return (f"trained {variant} for {self.epochs} epochs in {self.seconds:.1f} s; final loss "
-                f"{loss}; best val ADE (main agents) {best} at epoch {self.best_epoch}; "
-                f"run in {self.out_dir}")
+        return (
+            f"trained {variant} for {self.epochs} epochs in {self.seconds:.1f} s; final loss "
+            f"{loss}; best val ADE (main agents) {best} at epoch {self.best_epoch}; "
+            f"run in {self.out_dir}"
+        )
 
 
 def stored_configs(out_dir: str | os.PathLike) -> tuple[ModelConfig, TrainConfig]:
@@ -281,15 +303,18 @@ def stored_configs(out_dir: str | os.PathLike) -> tuple[ModelConfig, TrainConfig
     from predictor.config import model_config_from_dict, train_config_from_dict
 
     checkpoint = read_checkpoint(Path(out_dir) / "last.pt")
-    return (model_config_from_dict(checkpoint["model_config"]),
-            train_config_from_dict(checkpoint["train_config"]))
+    return (
+        model_config_from_dict(checkpoint["model_config"]),
+        train_config_from_dict(checkpoint["train_config"]),
+    )
 
 
 RESUME_MAY_CHANGE = ("epochs", "threads", "eval_every")
 
 
-def _check_resume(checkpoint: dict, model_cfg: ModelConfig, train_cfg: TrainConfig,
-                  data: dict) -> None:
+def _check_resume(
+    checkpoint: dict, model_cfg: ModelConfig, train_cfg: TrainConfig, data: dict
+) -> None:
     if checkpoint["model_config"] != config_to_dict(model_cfg):
         raise RunError("--resume must use the run's stored model configuration")
     stored, asked = checkpoint["train_config"], config_to_dict(train_cfg)
@@ -345,36 +370,60 @@ def train(
         _check_resume(checkpoint, model_cfg, train_cfg, data)
         restore_state(state, checkpoint)
         _rewrite_metrics(out / "metrics.jsonl", state.epoch)
-    run_config = {"model": config_to_dict(model_cfg), "train": config_to_dict(train_cfg),
-                  "data": data, "package_version": __version__}
+    run_config = {
+        "model": config_to_dict(model_cfg),
+        "train": config_to_dict(train_cfg),
+        "data": data,
+        "package_version": __version__,
+    }
     atomic_write_text(json.dumps(run_config, indent=2) + "\n", out / "config.json")
     num_observed = data["num_observed"]
     per_epoch = len(state.loader)
-    bar = tqdm(total=train_cfg.epochs * per_epoch, initial=min(state.epoch, train_cfg.epochs)
-               * per_epoch, desc=f"train {train_cfg.variant}", unit="step", disable=not progress)
+    bar = tqdm(
+        total=train_cfg.epochs * per_epoch,
+        initial=min(state.epoch, train_cfg.epochs) * per_epoch,
+        desc=f"train {train_cfg.variant}",
+        unit="step",
+        disable=not progress,
+    )
     final_loss = None
     with bar:
         for epoch in range(state.epoch + 1, train_cfg.epochs + 1):
-            record = _one_epoch(state, epoch, num_observed, train_cfg, val_batch, data, bar,
-                                step_callback)
+            record = _one_epoch(
+                state, epoch, num_observed, train_cfg, val_batch, data, bar, step_callback
+            )
             final_loss = record["train"]["loss"]
             with open(out / "metrics.jsonl", "a") as stream:
                 stream.write(json.dumps(record) + "\n")
             if record["best"]:
-                atomic_save(checkpoint_dict(state, model_cfg, train_cfg, data, False),
-                            out / "best.pt")
+                atomic_save(
+                    checkpoint_dict(state, model_cfg, train_cfg, data, False), out / "best.pt"
+                )
             atomic_save(checkpoint_dict(state, model_cfg, train_cfg, data, True), out / "last.pt")
     if not (out / "last.pt").exists():  # zero epochs: keep the initial weights
         atomic_save(checkpoint_dict(state, model_cfg, train_cfg, data, True), out / "last.pt")
     if not (out / "best.pt").exists():
         atomic_save(checkpoint_dict(state, model_cfg, train_cfg, data, False), out / "best.pt")
-    return TrainResult(out, state.epoch, state.best_epoch, state.best_score, final_loss,
-                       time.perf_counter() - started)
+    return TrainResult(
+        out,
+        state.epoch,
+        state.best_epoch,
+        state.best_score,
+        final_loss,
+        time.perf_counter() - started,
+    )
 
 
-def _one_epoch(state: RunState, epoch: int, num_observed: int, config: TrainConfig,
-               val_batch: Batch | None, data: dict, bar: tqdm,
-               step_callback: Callable[[int], None] | None) -> dict:
+def _one_epoch(
+    state: RunState,
+    epoch: int,
+    num_observed: int,
+    config: TrainConfig,
+    val_batch: Batch | None,
+    data: dict,
+    bar: tqdm,
+    step_callback: Callable[[int], None] | None,
+) -> dict:
     """Train one epoch, validate if due, update the best score; returns the metrics record."""
     started = time.perf_counter()
     terms = run_epoch(state, num_observed, config, bar, step_callback)
@@ -382,14 +431,21 @@ def _one_epoch(state: RunState, epoch: int, num_observed: int, config: TrainConf
     val, best = None, False
     due = epoch % config.eval_every == 0 or epoch == config.epochs
     if val_batch is not None and due:
-        val = validation_scores(state.model, val_batch, num_observed,
-                                tuple(data["case_names"]))
+        val = validation_scores(state.model, val_batch, num_observed, tuple(data["case_names"]))
         current = selection_score(val)
         if current is not None and (state.best_score is None or current < state.best_score):
             state.best_score, state.best_epoch, best = current, epoch, True
-        bar.set_postfix(epoch=epoch, loss=f"{terms['loss']:.3f}",
-                        val_ade=f"{current:.3f}" if current is not None else "n/a")
+        bar.set_postfix(
+            epoch=epoch,
+            loss=f"{terms['loss']:.3f}",
+            val_ade=f"{current:.3f}" if current is not None else "n/a",
+        )
     elif val_batch is None:  # nothing to select on: best.pt follows the last epoch
         state.best_epoch, best = epoch, True
-    return {"epoch": epoch, "train": terms, "val": val, "best": best,
-            "seconds": round(time.perf_counter() - started, 3)}
+    return {
+        "epoch": epoch,
+        "train": terms,
+        "val": val,
+        "best": best,
+        "seconds": round(time.perf_counter() - started, 3),
+    }

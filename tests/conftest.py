@@ -130,8 +130,13 @@ def dataset_file(make_dataset_file: Callable[..., Path]) -> Path:
 
 
 def write_predictions_npz(
-    path: Path, n: int = 3, num_observed: int = 4, num_predicted: int = 6, num_agents: int = 4,
-    with_attention: bool = True, seed: int = 0,
+    path: Path,
+    n: int = 3,
+    num_observed: int = 4,
+    num_predicted: int = 6,
+    num_agents: int = 4,
+    with_attention: bool = True,
+    seed: int = 0,
 ) -> Path:
     """A predictions file laid out as tools/evaluate.py writes it, from random data."""
     rng = np.random.default_rng(seed)

@@ -46,8 +46,10 @@ def test_round_trip_keeps_every_array_dtype_and_meta(tmp_path: Path) -> None:
     meta, splits = write_small_dataset(path, counts=(6, 3, 4))
     read_back_meta, read_back = read_dataset(path)
     assert read_back_meta == meta
-    assert read_back_meta.config == {"generator": {"seed": 7, "note": "made by tests/conftest.py"},
-                                     "lanes": [1, 2]}
+    assert read_back_meta.config == {
+        "generator": {"seed": 7, "note": "made by tests/conftest.py"},
+        "lanes": [1, 2],
+    }
     assert read_back_meta.case_names == ("major", "minor")
     assert read_meta(path) == meta
     for name in SPLITS:
@@ -74,8 +76,9 @@ def test_file_layout_follows_contract(tmp_path: Path) -> None:
 def test_empty_and_missing_splits_round_trip(tmp_path: Path) -> None:
     meta = make_meta()
     train = make_trajectory_set(3, meta.num_steps, 5)
-    path = write_dataset(tmp_path / "d.h5", meta, {"train": train,
-                                                   "val": TrajectorySet.empty(meta.num_steps, 5)})
+    path = write_dataset(
+        tmp_path / "d.h5", meta, {"train": train, "val": TrajectorySet.empty(meta.num_steps, 5)}
+    )
     _, splits = read_dataset(path)
     assert_sets_equal(splits["train"], train)
     for name in ("val", "test"):
@@ -131,8 +134,7 @@ def test_interrupted_write_leaves_nothing_behind(
     monkeypatch.setattr(fmt, "_write_split", interrupted)
     meta = make_meta()
     with pytest.raises(KeyboardInterrupt):
-        write_dataset(path, meta, {"train": make_trajectory_set(3, meta.num_steps)},
-                      overwrite=True)
+        write_dataset(path, meta, {"train": make_trajectory_set(3, meta.num_steps)}, overwrite=True)
     assert len(calls) == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # no temp file left
     if existing:
@@ -354,8 +356,9 @@ def test_summarize_reports_counts_per_split_and_case(dataset_file: Path) -> None
 
 def test_format_module_does_not_import_torch() -> None:
     code = "import sys, predictor.format; print('torch' in sys.modules)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         env=tool_env(), check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=tool_env(), check=True
+    )
     assert out.stdout.strip() == "False"
 
 
@@ -365,15 +368,21 @@ def test_format_module_does_not_import_torch() -> None:
 
 def _inspect(*args: object) -> subprocess.CompletedProcess:
     tool = Path(__file__).resolve().parents[1] / "tools" / "inspect_data.py"
-    return subprocess.run([sys.executable, str(tool), *map(str, args)], capture_output=True,
-                          text=True, env=tool_env(), timeout=120)
+    return subprocess.run(
+        [sys.executable, str(tool), *map(str, args)],
+        capture_output=True,
+        text=True,
+        env=tool_env(),
+        timeout=120,
+    )
 
 
 def test_inspect_tool_accepts_valid_file(dataset_file: Path) -> None:
     result = _inspect(dataset_file)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip().splitlines()[-1] == (
-        f"OK: {dataset_file} is a valid schema v1 dataset")
+        f"OK: {dataset_file} is a valid schema v1 dataset"
+    )
     assert summarize(dataset_file) in result.stdout
 
 

@@ -38,8 +38,9 @@ def test_nll_stays_finite_and_accurate_for_tiny_and_huge_scales():
     tril = torch.tensor([[1e-4, 0.0, 1e-4], [1e4, 5e3, 1e4]])
     target = torch.tensor([[1e-4, -2e-4], [3e4, 1e4]])
     got = gaussian_nll(target, mean, tril)
-    expected = -MultivariateNormal(mean.double(), scale_tril=Gaussian2D(
-        mean.double(), tril.double()).scale_tril()).log_prob(target.double())
+    expected = -MultivariateNormal(
+        mean.double(), scale_tril=Gaussian2D(mean.double(), tril.double()).scale_tril()
+    ).log_prob(target.double())
     torch.testing.assert_close(got.double(), expected, rtol=1e-5, atol=1e-4)
 
 
@@ -113,7 +114,9 @@ def test_compute_loss_is_the_weighted_sum_of_masked_means():
     roll_nll = -roll.log_prob(positions[:, t_obs:])[roll_keep].mean()
     assert abs(terms["nll_seq"] - float(roll_nll)) < 1e-9
     expected = (
-        terms["nll"] + terms["nll_seq"] + 0.3 * (terms["var"] + terms["var_seq"])
+        terms["nll"]
+        + terms["nll_seq"]
+        + 0.3 * (terms["var"] + terms["var_seq"])
         + 0.7 * (terms["tv"] + terms["tv_seq"])
     )
     assert abs(float(total) - expected) < 1e-9 and abs(terms["loss"] - expected) < 1e-9

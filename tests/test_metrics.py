@@ -37,11 +37,18 @@ def test_ade_fde_by_hand():
 
 def test_empty_case_gives_none():
     got = displacement_metrics(
-        np.zeros((1, 2, 2, 2)), np.zeros((1, 2, 2, 2)), np.ones((1, 2, 2), bool), np.array([0]),
+        np.zeros((1, 2, 2, 2)),
+        np.zeros((1, 2, 2, 2)),
+        np.ones((1, 2, 2), bool),
+        np.array([0]),
         ["a", "b"],
     )
     assert got["all_agents"]["cases"]["b"] == {
-        "ade": None, "fde": None, "count": 0, "final_count": 0, "scenes": 0
+        "ade": None,
+        "fde": None,
+        "count": 0,
+        "final_count": 0,
+        "scenes": 0,
     }
 
 

@@ -144,8 +144,10 @@ def test_smoothness_gradient_reaches_the_attention_module():
     positions, valid, _ = make_scene()
     out = model(positions, valid, 4, rollout=True)
     total, count = attention_tv(out.attention, valid[:, :-1])
-    roll_total, _ = attention_tv(out.rollout_attention, out.rollout_present.unsqueeze(1).expand(
-        -1, out.rollout_attention.shape[1], -1))
+    roll_total, _ = attention_tv(
+        out.rollout_attention,
+        out.rollout_present.unsqueeze(1).expand(-1, out.rollout_attention.shape[1], -1),
+    )
     (total / count + roll_total).backward()
     grad = model.f_attn.weight.grad
     assert grad is not None and torch.isfinite(grad).all() and grad.abs().sum() > 0
@@ -184,8 +186,9 @@ def test_untrained_model_predicts_the_mean_prior_with_the_initial_std():
         expected = 2 * current - previous if prior == "velocity" else current
         keep = valid[:, 1:-1] & valid[:, :-2]  # (B, T-2, N) present at t and t-1
         torch.testing.assert_close(out.one_step.mean[:, 1:][keep], expected[keep])
-        torch.testing.assert_close(out.one_step.tril, torch.tensor([0.3, 0.0, 0.3]).expand_as(
-            out.one_step.tril))
+        torch.testing.assert_close(
+            out.one_step.tril, torch.tensor([0.3, 0.0, 0.3]).expand_as(out.one_step.tril)
+        )
 
 
 def test_split_edge_layer_equals_the_concatenated_input():
@@ -193,6 +196,7 @@ def test_split_edge_layer_equals_the_concatenated_input():
     rel = torch.randn(3, 2, 5, 2)  # (S, B, N, 2) positions at position_scale
     tail, head = edge_index(5)
     gain = 50.0 / 5.0  # offsets between agents are read at interaction_scale
-    direct = model.f_interact(torch.cat([rel[:, :, tail], (rel[:, :, head] - rel[:, :, tail])
-                                         * gain], -1))  # (S, B, M, E)
+    direct = model.f_interact(
+        torch.cat([rel[:, :, tail], (rel[:, :, head] - rel[:, :, tail]) * gain], -1)
+    )  # (S, B, M, E)
     torch.testing.assert_close(model._edge_inputs(rel, head).flatten(2, 3), direct)

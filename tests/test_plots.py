@@ -27,8 +27,13 @@ PLOT_TOOL = REPO_ROOT / "tools" / "plot.py"
 
 
 def _run_plot(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(PLOT_TOOL), *map(str, args)], capture_output=True,
-                          text=True, env=tool_env(), timeout=120)
+    return subprocess.run(
+        [sys.executable, str(PLOT_TOOL), *map(str, args)],
+        capture_output=True,
+        text=True,
+        env=tool_env(),
+        timeout=120,
+    )
 
 
 def _assert_usage_error(result: subprocess.CompletedProcess, fragment: str) -> None:
@@ -120,8 +125,15 @@ def test_plots_do_not_touch_pyplot() -> None:
         "plot_samples(conftest.make_trajectory_set(4, meta.num_steps), meta)\n"
         "print('matplotlib.pyplot' in sys.modules)\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         env=tool_env(), cwd=REPO_ROOT, check=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=tool_env(),
+        cwd=REPO_ROOT,
+        check=True,
+        timeout=120,
+    )
     assert out.stdout.strip() == "False"
 
 
@@ -163,8 +175,10 @@ def test_plot_tool_bad_input_is_one_line_exit_2(tmp_path: Path, dataset_file: Pa
     for args, fragment in cases:
         _assert_usage_error(_run_plot(*args, "--out", out), fragment)
     _assert_usage_error(_run_plot("samples", dataset_file), "--out")
-    _assert_usage_error(_run_plot("samples", dataset_file, "--out", tmp_path / "x.nope"),
-                        "cannot write")
-    _assert_usage_error(_run_plot("samples", dataset_file, "--out", tmp_path / "no" / "x.png"),
-                        "does not exist")
+    _assert_usage_error(
+        _run_plot("samples", dataset_file, "--out", tmp_path / "x.nope"), "cannot write"
+    )
+    _assert_usage_error(
+        _run_plot("samples", dataset_file, "--out", tmp_path / "no" / "x.png"), "does not exist"
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["const_vel.npz", "data.h5", "pred.npz"]

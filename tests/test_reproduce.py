@@ -29,8 +29,13 @@ REDONE = ("nonsmooth", 1)  # this run's eval.json is deleted before the second r
 
 def run_reproduce(*args: str) -> tuple[subprocess.CompletedProcess, float]:
     started = time.perf_counter()
-    done = subprocess.run([sys.executable, str(REPO_ROOT / "tools" / "reproduce.py"), *args],
-                          capture_output=True, text=True, env=tool_env(), timeout=400)
+    done = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "tools" / "reproduce.py"), *args],
+        capture_output=True,
+        text=True,
+        env=tool_env(),
+        timeout=400,
+    )
     return done, time.perf_counter() - started
 
 
@@ -49,8 +54,11 @@ def quick(tmp_path_factory) -> dict:
     assert first.returncode == 0, first.stderr[-2000:]
     markdown_first = results.read_text()
     before = eval_files(cache)
-    redone = next(p for p in before if p.parent.name.startswith(f"seed{REDONE[1]}_ep1_")
-                  and p.parent.parent.name == REDONE[0])
+    redone = next(
+        p
+        for p in before
+        if p.parent.name.startswith(f"seed{REDONE[1]}_ep1_") and p.parent.parent.name == REDONE[0]
+    )
     redone_before = json.loads(redone.read_text())
     redone.unlink()
     refused, _ = run_reproduce(*args)  # the report exists and --overwrite is missing
@@ -58,11 +66,22 @@ def quick(tmp_path_factory) -> dict:
     second, second_s = run_reproduce(*args, "--overwrite")
     assert second.returncode == 0, second.stderr[-2000:]
     print(f"--quick: first run {first_s:.1f} s, cached rerun {second_s:.1f} s")
-    return {"root": root, "cache": cache, "results": results, "first": first,
-            "first_s": first_s, "second": second, "second_s": second_s, "before": before,
-            "after": eval_files(cache), "redone": redone, "redone_before": redone_before,
-            "refused": refused, "markdown_first": markdown_first,
-            "json": json.loads(results.with_name("results.json").read_text())}
+    return {
+        "root": root,
+        "cache": cache,
+        "results": results,
+        "first": first,
+        "first_s": first_s,
+        "second": second,
+        "second_s": second_s,
+        "before": before,
+        "after": eval_files(cache),
+        "redone": redone,
+        "redone_before": redone_before,
+        "refused": refused,
+        "markdown_first": markdown_first,
+        "json": json.loads(results.with_name("results.json").read_text()),
+    }
 
 
 def test_quick_run_writes_markdown_with_tables(quick):
@@ -70,9 +89,16 @@ def test_quick_run_writes_markdown_with_tables(quick):
     assert first.stdout.count("\n") == 1 and first.stdout.startswith("wrote ")
     assert "0 failed" in first.stdout and "runs:" in first.stderr  # tqdm over jobs
     text = quick["markdown_first"]
-    for section in ("## How this was produced", "## Settings and datasets", "## Paper claims",
-                    "## Training-set size study", "## Trajectories and attention",
-                    "## Sample trajectories", "## Discussion", "Quick smoke run"):
+    for section in (
+        "## How this was produced",
+        "## Settings and datasets",
+        "## Paper claims",
+        "## Training-set size study",
+        "## Trajectories and attention",
+        "## Sample trajectories",
+        "## Discussion",
+        "Quick smoke run",
+    ):
         assert section in text
     for setting in SETTINGS:
         assert f"### `{setting}`" in text
@@ -96,8 +122,11 @@ def test_quick_run_writes_the_figures(quick):
     figures = quick["results"].parent / "results"
     names = {p.name for p in figures.glob("*.png")}
     expected = {f"bars_{s}.png" for s in SETTINGS} | {
-        "size_study.png", "samples_double_merge.png", "samples_halting_car.png",
-        *(f"scene_{s}_{c}.png" for s in ("dm_r0.3", "hc_stop") for c in ("major", "minor"))}
+        "size_study.png",
+        "samples_double_merge.png",
+        "samples_halting_car.png",
+        *(f"scene_{s}_{c}.png" for s in ("dm_r0.3", "hc_stop") for c in ("major", "minor")),
+    }
     assert names == expected
     for name in names:
         data = (figures / name).read_bytes()
@@ -115,8 +144,9 @@ def test_results_json_has_every_setting_variant_and_seed(quick):
     for setting in SETTINGS:
         assert set(document["aggregates"][setting]) == set(VARIANTS)
         for variant in VARIANTS:
-            seeds = sorted(r["seed"] for r in runs
-                           if r["setting"] == setting and r["variant"] == variant)
+            seeds = sorted(
+                r["seed"] for r in runs if r["setting"] == setting and r["variant"] == variant
+            )
             assert seeds == ([0] if variant == "const_vel" else [0, 1])
     assert document["machine"]["cores"] >= 1 and document["machine"]["torch"]
 
@@ -126,16 +156,25 @@ def test_results_json_aggregates_match_the_runs(quick):
     for setting in ("dm_r0.8", "hc_go"):
         for group in ("main_agents", "all_agents"):
             for case in ("major", "minor"):
-                per_seed = [r[group][case]["fde"] for r in document["runs"]
-                            if r["setting"] == setting and r["variant"] == "ours"]
+                per_seed = [
+                    r[group][case]["fde"]
+                    for r in document["runs"]
+                    if r["setting"] == setting and r["variant"] == "ours"
+                ]
                 summary = document["aggregates"][setting]["ours"][group][case]["fde"]
                 assert summary["mean"] == pytest.approx(np.mean(per_seed))
                 assert summary["std"] == pytest.approx(np.std(per_seed, ddof=1))
     cell = document["tests"]["hc_stop"]["ours_vs_s_attn"]["main_agents"]["minor"]["ade"]
-    ours = [r["main_agents"]["minor"]["ade"] for r in document["runs"]
-            if r["setting"] == "hc_stop" and r["variant"] == "ours"]
-    other = [r["main_agents"]["minor"]["ade"] for r in document["runs"]
-             if r["setting"] == "hc_stop" and r["variant"] == "s_attn"]
+    ours = [
+        r["main_agents"]["minor"]["ade"]
+        for r in document["runs"]
+        if r["setting"] == "hc_stop" and r["variant"] == "ours"
+    ]
+    other = [
+        r["main_agents"]["minor"]["ade"]
+        for r in document["runs"]
+        if r["setting"] == "hc_stop" and r["variant"] == "s_attn"
+    ]
     assert cell["p"] == pytest.approx(stats.ttest_ind(ours, other, equal_var=False).pvalue)
 
 
@@ -164,14 +203,17 @@ def test_existing_report_needs_overwrite(quick):
     assert refused.stderr.count("\n") == 1 and "--overwrite" in refused.stderr
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--settings", "dm_r0.5"], "unknown setting 'dm_r0.5'"),
-    (["--variants", "ours,bogus"], "unknown variant 'bogus'"),
-    (["--seeds", "0"], "--seeds must be at least 1"),
-    (["--jobs", "0"], "--jobs must be at least 1"),
-    (["--epochs", "x"], "invalid int value"),
-    (["--results", "report.txt"], "must name a .md file"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--settings", "dm_r0.5"], "unknown setting 'dm_r0.5'"),
+        (["--variants", "ours,bogus"], "unknown variant 'bogus'"),
+        (["--seeds", "0"], "--seeds must be at least 1"),
+        (["--jobs", "0"], "--jobs must be at least 1"),
+        (["--epochs", "x"], "invalid int value"),
+        (["--results", "report.txt"], "must name a .md file"),
+    ],
+)
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, args, message):
     with pytest.raises(SystemExit) as exit_:
         reproduce.main(["--out-dir", str(tmp_path / "c"), *args])
@@ -183,8 +225,9 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, args, message):
 
 # ---------------------------------------------------------------------------------- planning
 def test_settings_and_groups_expand_in_canonical_order():
-    names = reproduce.pick("hc_go,main,dm_r0.3", tuple(reproduce.SETTING_BY_NAME),
-                           reproduce.GROUPS, "setting")
+    names = reproduce.pick(
+        "hc_go,main,dm_r0.3", tuple(reproduce.SETTING_BY_NAME), reproduce.GROUPS, "setting"
+    )
     assert names == ("dm_r0.3", "hc_stop", "hc_go")
     assert reproduce.GROUPS["size"] == ("dm_3+10", "dm_15+30", "dm_30+100")
 
@@ -222,6 +265,7 @@ def test_cache_keys_change_with_the_configs(tmp_path):
     spec = reproduce.data_spec(protocol, setting)
     other = dataclasses.replace(spec, scenario_digest=reproduce.digest({"changed": 1}))
     assert spec.stem != other.stem
+
     def key(variant: str, seed: int, epochs: int) -> str:
         return reproduce.run_dir(tmp_path, spec, variant, seed, epochs).name.split("_")[-1]
 
@@ -266,19 +310,34 @@ def fake_eval(ade: dict, fde: dict, accuracy: float = 0.5) -> dict:
         cases = {names[r]: {"ade": scale * ade[r], "fde": scale * fde[r]} for r in names}
         return {"cases": cases, "overall": {"ade": scale * ade["major"], "fde": 0.0}}
 
-    acc = {"cases": {n: {"accuracy": accuracy, "mean_weight": accuracy / 2}
-                     for n in names.values()},
-           "overall": {"accuracy": accuracy, "mean_weight": accuracy / 2}}
-    return {"major_case": "go", "case_names": ["stop", "go"], "main_agents": group(1.0),
-            "all_agents": group(0.1), "attention_accuracy": acc, "train_seconds": 2.0}
+    acc = {
+        "cases": {n: {"accuracy": accuracy, "mean_weight": accuracy / 2} for n in names.values()},
+        "overall": {"accuracy": accuracy, "mean_weight": accuracy / 2},
+    }
+    return {
+        "major_case": "go",
+        "case_names": ["stop", "go"],
+        "main_agents": group(1.0),
+        "all_agents": group(0.1),
+        "attention_accuracy": acc,
+        "train_seconds": 2.0,
+    }
 
 
 def hand_records() -> list[dict]:
-    rows = [("ours", 0, 1.0, 2.0), ("ours", 1, 3.0, 4.0), ("s_attn", 0, 5.0, 8.0),
-            ("s_attn", 1, 7.0, 8.0), ("const_vel", 0, 9.0, 9.0)]
-    return [_report.make_record("hc_go", v, s, fake_eval({"major": a, "minor": m},
-                                                         {"major": 2 * a, "minor": 2 * m}))
-            for v, s, a, m in rows]
+    rows = [
+        ("ours", 0, 1.0, 2.0),
+        ("ours", 1, 3.0, 4.0),
+        ("s_attn", 0, 5.0, 8.0),
+        ("s_attn", 1, 7.0, 8.0),
+        ("const_vel", 0, 9.0, 9.0),
+    ]
+    return [
+        _report.make_record(
+            "hc_go", v, s, fake_eval({"major": a, "minor": m}, {"major": 2 * a, "minor": 2 * m})
+        )
+        for v, s, a, m in rows
+    ]
 
 
 def test_records_map_case_names_to_major_and_minor():
@@ -294,8 +353,9 @@ def test_attention_weight_is_aggregated_and_tabled():
     weight = aggregates["hc_go"]["ours"]["attention_weight"]["minor"]
     assert weight == {"mean": 0.25, "std": 0.0, "n": 2}  # fake_eval: weight = accuracy / 2
     names = {"major": "go", "minor": "stop"}
-    lines = _report.results_table(aggregates, "hc_go", ("ours", "const_vel"), "main_agents",
-                                  names).splitlines()
+    lines = _report.results_table(
+        aggregates, "hc_go", ("ours", "const_vel"), "main_agents", names
+    ).splitlines()
     assert "attn. weight major" in lines[0]
     assert lines[2].startswith("| Ours |") and lines[2].count("0.250 ± 0.000") == 2
     assert lines[3].startswith("| Const-Vel |") and lines[3].count("n/a") == 4
@@ -303,8 +363,9 @@ def test_attention_weight_is_aggregated_and_tabled():
 
 def test_bar_inputs_from_hand_made_runs():
     aggregates = _report.aggregate(hand_records())
-    bars = _report.bar_inputs(aggregates, "hc_go", "ade", ("s_attn", "nonsmooth", "ours",
-                                                           "const_vel"))
+    bars = _report.bar_inputs(
+        aggregates, "hc_go", "ade", ("s_attn", "nonsmooth", "ours", "const_vel")
+    )
     assert bars.variants == ("s_attn", "ours", "const_vel")  # nonsmooth was not run
     assert bars.cases == ("major", "minor")
     np.testing.assert_allclose(bars.means, [[6.0, 8.0], [2.0, 3.0], [9.0, 9.0]])
@@ -332,22 +393,31 @@ def test_comparisons_and_verdicts_on_hand_made_runs():
     assert _report.better_verdict(2.0, 1.0, 0.001, 0.01) == "does not hold"
     assert _report.better_verdict(None, 1.0, 0.5, 0.01) == "n/a"
     assert _report.claim_cell(None, "better") == "n/a (not run)"
-    assert _report.claim_cell({"mean_ours": 1.1, "mean_other": 1.0, "p": 0.4},
-                              "comparable").startswith("holds (no significant difference) (+10%")
+    assert _report.claim_cell(
+        {"mean_ours": 1.1, "mean_other": 1.0, "p": 0.4}, "comparable"
+    ).startswith("holds (no significant difference) (+10%")
 
 
-@pytest.mark.parametrize("ours_by_size, verdict", [
-    ([1.0, 1.6, 1.9], "holds"),  # margins 1.0, 0.4, 0.1
-    ([1.0, 1.9, 1.6], "partly"),  # margins 1.0, 0.1, 0.4
-    ([1.9, 1.6, 1.0], "does not hold"),  # margins 0.1, 0.4, 1.0
-])
+@pytest.mark.parametrize(
+    "ours_by_size, verdict",
+    [
+        ([1.0, 1.6, 1.9], "holds"),  # margins 1.0, 0.4, 0.1
+        ([1.0, 1.9, 1.6], "partly"),  # margins 1.0, 0.1, 0.4
+        ([1.9, 1.6, 1.0], "does not hold"),  # margins 0.1, 0.4, 1.0
+    ],
+)
 def test_size_claim_needs_a_shrinking_margin(ours_by_size, verdict):
     records = []
     for k, ours in enumerate(ours_by_size):
         for variant, ade in (("ours", ours), ("nonsmooth", 2.0)):
-            records.append(_report.make_record(
-                f"size{k}", variant, 0, fake_eval({"major": ade, "minor": ade},
-                                                  {"major": ade, "minor": ade})))
+            records.append(
+                _report.make_record(
+                    f"size{k}",
+                    variant,
+                    0,
+                    fake_eval({"major": ade, "minor": ade}, {"major": ade, "minor": ade}),
+                )
+            )
     cells = _report.size_claim(_report.aggregate(records), ["size0", "size1", "size2"])
     assert set(cells) == {"major ade", "major fde", "minor ade", "minor fde"}
     assert all(cell.startswith(verdict + " (") for cell in cells.values())

@@ -15,13 +15,30 @@ from conftest import REPO_ROOT, tool_env
 from test_training import write_braking_dataset
 
 TINY = ["--embed-dim", "8", "--edge-hidden", "8", "--node-hidden", "12", "--attn-dim", "4"]
-NPZ_KEYS = {"pred_mean", "true_xy", "valid", "case", "case_names", "role_names", "roles",
-            "attention", "attention_label", "interaction", "num_observed", "dt"}
+NPZ_KEYS = {
+    "pred_mean",
+    "true_xy",
+    "valid",
+    "case",
+    "case_names",
+    "role_names",
+    "roles",
+    "attention",
+    "attention_label",
+    "interaction",
+    "num_observed",
+    "dt",
+}
 
 
 def run_tool(name: str, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(REPO_ROOT / "tools" / name), *map(str, args)],
-                          capture_output=True, text=True, env=tool_env(), timeout=120)
+    return subprocess.run(
+        [sys.executable, str(REPO_ROOT / "tools" / name), *map(str, args)],
+        capture_output=True,
+        text=True,
+        env=tool_env(),
+        timeout=120,
+    )
 
 
 def load_tool(name: str):
@@ -39,10 +56,23 @@ def smoke(tmp_path_factory) -> dict:
     root = tmp_path_factory.mktemp("smoke")
     data = write_braking_dataset(root / "braking.h5", counts=(6, 3, 4))
     run = root / "run"
-    trained = run_tool("train.py", "--data", data, "--out", run, "--epochs", "2", "--seed", "0",
-                       "--batch-size", "4", *TINY)
-    evaluated = run_tool("evaluate.py", "--run", run, "--data", data,
-                         "--save-predictions", root / "pred.npz")
+    trained = run_tool(
+        "train.py",
+        "--data",
+        data,
+        "--out",
+        run,
+        "--epochs",
+        "2",
+        "--seed",
+        "0",
+        "--batch-size",
+        "4",
+        *TINY,
+    )
+    evaluated = run_tool(
+        "evaluate.py", "--run", run, "--data", data, "--save-predictions", root / "pred.npz"
+    )
     return {"root": root, "data": data, "run": run, "trained": trained, "evaluated": evaluated}
 
 
@@ -81,8 +111,17 @@ def test_evaluate_writes_json_and_predictions(smoke):
 
 
 def test_const_vel_baseline_and_its_nan_attention(smoke, tmp_path: Path):
-    out = run_tool("evaluate.py", "--baseline", "const_vel", "--data", smoke["data"],
-                   "--out", tmp_path / "cv.json", "--save-predictions", tmp_path / "cv.npz")
+    out = run_tool(
+        "evaluate.py",
+        "--baseline",
+        "const_vel",
+        "--data",
+        smoke["data"],
+        "--out",
+        tmp_path / "cv.json",
+        "--save-predictions",
+        tmp_path / "cv.npz",
+    )
     assert out.returncode == 0, out.stderr
     result = json.loads((tmp_path / "cv.json").read_text())
     assert result["predictor"] == "const_vel"
@@ -96,10 +135,21 @@ def test_closed_stdout_ends_quietly(smoke):
     read_end, write_end = os.pipe()
     os.close(read_end)
     try:
-        out = subprocess.run([sys.executable, str(REPO_ROOT / "tools" / "evaluate.py"),
-                              "--baseline", "const_vel", "--data", str(smoke["data"])],
-                             stdout=write_end, stderr=subprocess.PIPE, text=True, env=tool_env(),
-                             timeout=120)
+        out = subprocess.run(
+            [
+                sys.executable,
+                str(REPO_ROOT / "tools" / "evaluate.py"),
+                "--baseline",
+                "const_vel",
+                "--data",
+                str(smoke["data"]),
+            ],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=tool_env(),
+            timeout=120,
+        )
     finally:
         os.close(write_end)
     assert out.returncode == 1
@@ -110,18 +160,27 @@ def test_closed_stdout_ends_quietly(smoke):
     ("tool", "args", "message"),
     [
         ("train.py", ["--data", "{missing}", "--out", "{tmp}/r"], "does not exist"),
-        ("train.py", ["--data", "{data}", "--out", "{tmp}/r", "--variant", "bogus"],
-         "invalid choice"),
+        (
+            "train.py",
+            ["--data", "{data}", "--out", "{tmp}/r", "--variant", "bogus"],
+            "invalid choice",
+        ),
         ("train.py", ["--data", "{data}", "--out", "{tmp}/r", "--epochs", "-1"], "epochs"),
         ("train.py", ["--data", "{foreign}", "--out", "{tmp}/r"], "not an HDF5 file"),
         ("train.py", ["--data", "{data}", "--out", "{run}"], "not empty"),
         ("train.py", ["--data", "{data}", "--out", "{tmp}/r", "--resume"], "no such checkpoint"),
         ("evaluate.py", ["--run", "{run}", "--data", "{missing}"], "does not exist"),
-        ("evaluate.py", ["--run", "{run}", "--data", "{foreign}", "--out", "{tmp}/e.json"],
-         "not an HDF5 file"),
+        (
+            "evaluate.py",
+            ["--run", "{run}", "--data", "{foreign}", "--out", "{tmp}/e.json"],
+            "not an HDF5 file",
+        ),
         ("evaluate.py", ["--run", "{run}", "--data", "{data}"], "already exists"),
-        ("evaluate.py", ["--run", "{tmp}", "--data", "{data}", "--out", "{tmp}/e.json"],
-         "checkpoint"),
+        (
+            "evaluate.py",
+            ["--run", "{tmp}", "--data", "{data}", "--out", "{tmp}/e.json"],
+            "checkpoint",
+        ),
         ("evaluate.py", ["--baseline", "magic", "--data", "{data}"], "invalid choice"),
         ("evaluate.py", ["--run", "{foreign}", "--data", "{data}"], "does not exist"),
     ],
@@ -129,8 +188,13 @@ def test_closed_stdout_ends_quietly(smoke):
 def test_bad_input_is_one_line_and_exit_2(smoke, tmp_path, capsys, tool, args, message):
     foreign = tmp_path / "foreign.h5"
     foreign.write_text("not a dataset")
-    names = {"missing": tmp_path / "missing.h5", "tmp": tmp_path, "data": smoke["data"],
-             "foreign": foreign, "run": smoke["run"]}
+    names = {
+        "missing": tmp_path / "missing.h5",
+        "tmp": tmp_path,
+        "data": smoke["data"],
+        "foreign": foreign,
+        "run": smoke["run"],
+    }
     argv = [a.format(**names) for a in args]
     module = load_tool(tool)
     with pytest.raises(SystemExit) as exit_info:

@@ -47,23 +47,35 @@ def braking_scenes(n: int, steps: int, agents: int, num_observed: int, seed: int
     roles = np.full((n, agents), 2, dtype=np.int8)
     roles[:, :2] = [0, 1]
     return TrajectorySet(
-        states=states, actions=np.zeros((n, steps, agents, 2), np.float32), valid=valid,
-        attention=attention, interaction=interaction, case=case,
-        seed=np.arange(n, dtype=np.int64) + 1000 * seed, roles=roles,
+        states=states,
+        actions=np.zeros((n, steps, agents, 2), np.float32),
+        valid=valid,
+        attention=attention,
+        interaction=interaction,
+        case=case,
+        seed=np.arange(n, dtype=np.int64) + 1000 * seed,
+        roles=roles,
     )
 
 
-def write_braking_dataset(path: Path, counts=(8, 4, 4), steps: int = 12, agents: int = 4,
-                          num_observed: int = 5) -> Path:
+def write_braking_dataset(
+    path: Path, counts=(8, 4, 4), steps: int = 12, agents: int = 4, num_observed: int = 5
+) -> Path:
     """A small schema-v1 file of `braking_scenes` (train, val, test)."""
     meta = DatasetMeta(
-        scenario="braking_test", dt=0.2, num_observed=num_observed,
-        num_predicted=steps - num_observed, case_names=("early", "late"), major_case="early",
-        role_names=("leader", "follower", "distractor"), config={"made_by": "tests"},
+        scenario="braking_test",
+        dt=0.2,
+        num_observed=num_observed,
+        num_predicted=steps - num_observed,
+        case_names=("early", "late"),
+        major_case="early",
+        role_names=("leader", "follower", "distractor"),
+        config={"made_by": "tests"},
     )
-    splits = {name: braking_scenes(count, steps, agents, num_observed, seed=k)
-              for k, (name, count) in enumerate(zip(("train", "val", "test"), counts,
-                                                    strict=True))}
+    splits = {
+        name: braking_scenes(count, steps, agents, num_observed, seed=k)
+        for k, (name, count) in enumerate(zip(("train", "val", "test"), counts, strict=True))
+    }
     write_dataset(path, meta, splits)
     return path
 
@@ -107,14 +119,17 @@ def test_same_seed_same_run_and_files(braking_file: Path, tmp_path: Path):
     assert_same_weights(weights(tmp_path / "a"), weights(tmp_path / "b"))
     other_cfg = tiny_configs(epochs=2, seed=1)
     train(braking_file, other_cfg[0], other_cfg[1], tmp_path / "c", progress=False)
-    assert not torch.equal(weights(tmp_path / "a")["f_pred.weight"],
-                           weights(tmp_path / "c")["f_pred.weight"])
+    assert not torch.equal(
+        weights(tmp_path / "a")["f_pred.weight"], weights(tmp_path / "c")["f_pred.weight"]
+    )
     assert first.epochs == 2 and first.best_epoch in (1, 2) and first.best_score > 0
-    records = [json.loads(line) for line in (tmp_path / "a/metrics.jsonl").read_text().split("\n")
-               if line]
+    records = [
+        json.loads(line) for line in (tmp_path / "a/metrics.jsonl").read_text().split("\n") if line
+    ]
     assert [r["epoch"] for r in records] == [1, 2]
-    assert records[-1]["val"]["ade_main"] == pytest.approx(first.best_score) or not records[-1][
-        "best"]
+    assert (
+        records[-1]["val"]["ade_main"] == pytest.approx(first.best_score) or not records[-1]["best"]
+    )
     config = json.loads((tmp_path / "a/config.json").read_text())
     assert config["train"]["variant"] == "ours" and config["model"]["edge_hidden"] == 8
     assert set(weights(tmp_path / "a", "best.pt")) == set(weights(tmp_path / "a"))
@@ -129,11 +144,18 @@ def test_resume_after_interruption_equals_uninterrupted(braking_file: Path, tmp_
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        train(braking_file, model_cfg, train_cfg, tmp_path / "cut", progress=False,
-              step_callback=interrupt)
+        train(
+            braking_file,
+            model_cfg,
+            train_cfg,
+            tmp_path / "cut",
+            progress=False,
+            step_callback=interrupt,
+        )
     assert torch.load(tmp_path / "cut/last.pt", weights_only=True)["epoch"] == 1
-    result = train(braking_file, model_cfg, train_cfg, tmp_path / "cut", resume=True,
-                   progress=False)
+    result = train(
+        braking_file, model_cfg, train_cfg, tmp_path / "cut", resume=True, progress=False
+    )
     assert result.epochs == 3
     assert_same_weights(weights(tmp_path / "full"), weights(tmp_path / "cut"))
     assert_same_weights(weights(tmp_path / "full", "best.pt"), weights(tmp_path / "cut", "best.pt"))

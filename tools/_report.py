@@ -38,12 +38,26 @@ GROUPS = ("main_agents", "all_agents")
 HEADLINE = "main_agents"
 ALPHA_S_ATTN = 0.01  # the paper's threshold for Ours vs S-Attn
 ALPHA = 0.05  # every other comparison
-LABELS = {"ours": "Ours", "s_attn": "S-Attn", "nonsmooth": "Ours-NonSmooth",
-          "average": "Ours-Average", "correct": "Ours-Correct", "const_vel": "Const-Vel"}
-COLORS = {"ours": "#ff7f0e", "s_attn": "#1f77b4", "nonsmooth": "#2ca02c", "average": "#9467bd",
-          "correct": "#d62728", "const_vel": "#7f7f7f"}
-STATISTICS = ("mean +- sample standard deviation (ddof = 1) over training seeds; p-values: "
-              "Welch's two-sided two-sample t-test, scipy.stats.ttest_ind(equal_var=False)")
+LABELS = {
+    "ours": "Ours",
+    "s_attn": "S-Attn",
+    "nonsmooth": "Ours-NonSmooth",
+    "average": "Ours-Average",
+    "correct": "Ours-Correct",
+    "const_vel": "Const-Vel",
+}
+COLORS = {
+    "ours": "#ff7f0e",
+    "s_attn": "#1f77b4",
+    "nonsmooth": "#2ca02c",
+    "average": "#9467bd",
+    "correct": "#d62728",
+    "const_vel": "#7f7f7f",
+}
+STATISTICS = (
+    "mean +- sample standard deviation (ddof = 1) over training seeds; p-values: "
+    "Welch's two-sided two-sample t-test, scipy.stats.ttest_ind(equal_var=False)"
+)
 
 
 # ---------------------------------------------------------------------------------- statistics
@@ -52,18 +66,26 @@ def make_record(setting: str, variant: str, seed: int, result: dict) -> dict:
     attention_weight: {case: mean weight on the labelled car}}."""
     names = {"major": result["major_case"]}
     names["minor"] = next(c for c in result["case_names"] if c != result["major_case"])
-    record = {"setting": setting, "variant": variant, "seed": seed, "case_names": names,
-              "train_seconds": result.get("train_seconds"), "best_epoch": result.get("best_epoch")}
+    record = {
+        "setting": setting,
+        "variant": variant,
+        "seed": seed,
+        "case_names": names,
+        "train_seconds": result.get("train_seconds"),
+        "best_epoch": result.get("best_epoch"),
+    }
     for group in GROUPS:
         parts = {role: result[group]["cases"][name] for role, name in names.items()}
         parts["overall"] = result[group]["overall"]
         record[group] = {role: {m: part[m] for m in METRICS} for role, part in parts.items()}
     accuracy = result["attention_accuracy"]
-    record["attention_accuracy"] = {role: accuracy["cases"][name]["accuracy"]
-                                    for role, name in names.items()}
+    record["attention_accuracy"] = {
+        role: accuracy["cases"][name]["accuracy"] for role, name in names.items()
+    }
     record["attention_accuracy"]["overall"] = accuracy["overall"]["accuracy"]
-    record["attention_weight"] = {role: accuracy["cases"][name].get("mean_weight")
-                                  for role, name in names.items()}
+    record["attention_weight"] = {
+        role: accuracy["cases"][name].get("mean_weight") for role, name in names.items()
+    }
     record["attention_weight"]["overall"] = accuracy["overall"].get("mean_weight")
     return record
 
@@ -106,15 +128,20 @@ def aggregate(records: list[dict]) -> dict:
     attention_weight}}}."""
     out: dict = {}
     for setting, variant in dict.fromkeys((r["setting"], r["variant"]) for r in records):
-        entry = {"seeds": sum(r["setting"] == setting and r["variant"] == variant
-                              for r in records)}
+        entry = {"seeds": sum(r["setting"] == setting and r["variant"] == variant for r in records)}
         for group in GROUPS:
-            entry[group] = {case: {m: summarize(values(records, setting, variant,
-                                                       (group, case, m))) for m in METRICS}
-                            for case in (*CASES, "overall")}
+            entry[group] = {
+                case: {
+                    m: summarize(values(records, setting, variant, (group, case, m)))
+                    for m in METRICS
+                }
+                for case in (*CASES, "overall")
+            }
         for key in ("attention_accuracy", "attention_weight"):
-            entry[key] = {case: summarize(values(records, setting, variant, (key, case)))
-                          for case in (*CASES, "overall")}
+            entry[key] = {
+                case: summarize(values(records, setting, variant, (key, case)))
+                for case in (*CASES, "overall")
+            }
         out.setdefault(setting, {})[variant] = entry
     return out
 
@@ -135,8 +162,11 @@ def compare(records: list[dict]) -> dict:
                     for metric in METRICS:
                         a = values(records, setting, "ours", (group, case, metric))
                         b = values(records, setting, other, (group, case, metric))
-                        cell = {**welch_test(a, b), "mean_ours": summarize(a)["mean"],
-                                "mean_other": summarize(b)["mean"]}
+                        cell = {
+                            **welch_test(a, b),
+                            "mean_ours": summarize(a)["mean"],
+                            "mean_other": summarize(b)["mean"],
+                        }
                         table.setdefault(group, {}).setdefault(case, {})[metric] = cell
             out.setdefault(setting, {})[f"ours_vs_{other}"] = table
     return out
@@ -152,8 +182,7 @@ class BarInputs:
     errors: np.ndarray  # (V, C) sample std, 0 where undefined (one seed, the baseline)
 
 
-def bar_inputs(aggregates: dict, setting: str, metric: str, variants: tuple[str, ...]
-               ) -> BarInputs:
+def bar_inputs(aggregates: dict, setting: str, metric: str, variants: tuple[str, ...]) -> BarInputs:
     """Bar heights for `metric` of the headline group, variants in the given order."""
     shown = tuple(v for v in variants if v in aggregates.get(setting, {}))
     means = np.full((len(shown), len(CASES)), np.nan)
@@ -168,9 +197,10 @@ def bar_inputs(aggregates: dict, setting: str, metric: str, variants: tuple[str,
 
 
 # ---------------------------------------------------------------------------------- claims
-def better_verdict(mean_ours: float | None, mean_other: float | None, p: float | None,
-                   alpha: float) -> str:
-    """"holds": ours lower and p < alpha; "not significant": lower, p >= alpha or undefined;
+def better_verdict(
+    mean_ours: float | None, mean_other: float | None, p: float | None, alpha: float
+) -> str:
+    """ "holds": ours lower and p < alpha; "not significant": lower, p >= alpha or undefined;
     "does not hold": ours not lower; "n/a": missing."""
     if mean_ours is None or mean_other is None:
         return "n/a"
@@ -215,12 +245,21 @@ def claims(tests: dict, aggregates: dict, settings: list, size_settings: list) -
     for setting in settings:
         for other, kind, text in CLAIMS:
             table = tests.get(setting, {}).get(f"ours_vs_{other}")
-            cells = {f"{case} {metric}": claim_cell(
-                table[HEADLINE][case][metric] if table else None, kind)
-                for case in CASES for metric in METRICS}
+            cells = {
+                f"{case} {metric}": claim_cell(
+                    table[HEADLINE][case][metric] if table else None, kind
+                )
+                for case in CASES
+                for metric in METRICS
+            }
             rows.append({"setting": setting, "claim": text, "cells": cells})
-    rows.append({"setting": "size study", "cells": size_claim(aggregates, size_settings),
-                 "claim": "margin Ours-NonSmooth minus Ours grows as the data shrinks"})
+    rows.append(
+        {
+            "setting": "size study",
+            "cells": size_claim(aggregates, size_settings),
+            "claim": "margin Ours-NonSmooth minus Ours grows as the data shrinks",
+        }
+    )
     return rows
 
 
@@ -239,27 +278,35 @@ def size_margins(aggregates: dict, size_settings: list, case: str, metric: str) 
 
 
 def size_claim(aggregates: dict, size_settings: list) -> dict:
-    """"holds" if the margin falls strictly from the smallest to the largest set at every
+    """ "holds" if the margin falls strictly from the smallest to the largest set at every
     step, "partly" if only smallest > largest, else "does not hold"."""
     cells = {}
     for case in CASES:
         for metric in METRICS:
-            margins = [m for m in size_margins(aggregates, size_settings, case, metric)
-                       if m is not None]
+            margins = [
+                m for m in size_margins(aggregates, size_settings, case, metric) if m is not None
+            ]
             if len(margins) < 2:
                 cells[f"{case} {metric}"] = "n/a (needs two size settings)"
                 continue
             steps = [a > b for a, b in zip(margins, margins[1:])]
-            verdict = ("holds" if all(steps) else
-                       "partly" if margins[0] > margins[-1] else "does not hold")
+            verdict = (
+                "holds" if all(steps) else "partly" if margins[0] > margins[-1] else "does not hold"
+            )
             text = ", ".join(f"{m:+.3f}" for m in margins)
             cells[f"{case} {metric}"] = f"{verdict} (margins {text} m, smallest set first)"
     return cells
 
 
 # ---------------------------------------------------------------------------------- figures
-def bar_figure(aggregates: dict, setting: str, variants: tuple[str, ...], tests: dict,
-               case_names: dict, title: str):
+def bar_figure(
+    aggregates: dict,
+    setting: str,
+    variants: tuple[str, ...],
+    tests: dict,
+    case_names: dict,
+    title: str,
+):
     """ADE and FDE bars per case and variant with std error bars (the paper's Fig. 3 and 5)."""
     fig = new_figure(10.0, 3.8)
     axes = fig.subplots(1, len(METRICS))
@@ -269,14 +316,23 @@ def bar_figure(aggregates: dict, setting: str, variants: tuple[str, ...], tests:
         width = 0.8 / max(len(bars.variants), 1)
         for i, variant in enumerate(bars.variants):
             x = np.arange(len(bars.cases)) + (i - (len(bars.variants) - 1) / 2) * width
-            ax.bar(x, bars.means[i], width, yerr=bars.errors[i], capsize=3,
-                   color=COLORS[variant], label=LABELS[variant])
-        ax.set_xticks(np.arange(len(bars.cases)),
-                      [f"{c} ({case_names.get(c, '?')})" for c in bars.cases])
+            ax.bar(
+                x,
+                bars.means[i],
+                width,
+                yerr=bars.errors[i],
+                capsize=3,
+                color=COLORS[variant],
+                label=LABELS[variant],
+            )
+        ax.set_xticks(
+            np.arange(len(bars.cases)), [f"{c} ({case_names.get(c, '?')})" for c in bars.cases]
+        )
         ax.set_ylabel(f"{metric.upper()} [m] (main cars)")
         if versus:
-            ps = ", ".join(f"{case} {_p_text(versus[HEADLINE][case][metric]['p'])}"
-                           for case in CASES)
+            ps = ", ".join(
+                f"{case} {_p_text(versus[HEADLINE][case][metric]['p'])}" for case in CASES
+            )
             ax.set_title(f"{metric.upper()}; Ours vs S-Attn: {ps}", fontsize="small")
     _legend_below(fig, axes[0])
     fig.suptitle(title)
@@ -285,15 +341,28 @@ def bar_figure(aggregates: dict, setting: str, variants: tuple[str, ...], tests:
 
 def _legend_below(fig, ax) -> None:
     handles, labels = ax.get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), fontsize="small",
-               frameon=False)
+    fig.legend(
+        handles,
+        labels,
+        loc="outside lower center",
+        ncols=len(labels),
+        fontsize="small",
+        frameon=False,
+    )
 
 
-def series(aggregates: dict, settings: list, variant: str, case: str, metric: str
-           ) -> tuple[np.ndarray, np.ndarray]:
+def series(
+    aggregates: dict, settings: list, variant: str, case: str, metric: str
+) -> tuple[np.ndarray, np.ndarray]:
     """Means (NaN where missing) and stds (0 where undefined) of one variant across settings."""
-    summaries = [aggregates.get(s, {}).get(variant, {}).get(HEADLINE, {}).get(case, {})
-                 .get(metric, {"mean": None, "std": None}) for s in settings]
+    summaries = [
+        aggregates.get(s, {})
+        .get(variant, {})
+        .get(HEADLINE, {})
+        .get(case, {})
+        .get(metric, {"mean": None, "std": None})
+        for s in settings
+    ]
     mean = np.array([np.nan if v["mean"] is None else v["mean"] for v in summaries])  # (S,)
     std = np.array([v["std"] or 0.0 for v in summaries])  # (S,)
     return mean, std
@@ -305,15 +374,23 @@ def size_figure(aggregates: dict, size_settings: list, labels: list, variants: t
     axes = fig.subplots(len(METRICS), len(CASES), squeeze=False)
     x = np.arange(len(size_settings))
     dodge = 0.04 * (np.arange(len(variants)) - (len(variants) - 1) / 2)  # (V,) keep bars apart
-    cells = [(r, metric, c, case) for r, metric in enumerate(METRICS)
-             for c, case in enumerate(CASES)]
+    cells = [
+        (r, metric, c, case) for r, metric in enumerate(METRICS) for c, case in enumerate(CASES)
+    ]
     for row, metric, column, case in cells:
         ax = axes[row, column]
         for offset, variant in zip(dodge, variants):
             mean, std = series(aggregates, size_settings, variant, case, metric)
             if np.isfinite(mean).any():
-                ax.errorbar(x + offset, mean, yerr=std, marker="o", capsize=3,
-                            color=COLORS[variant], label=LABELS[variant])
+                ax.errorbar(
+                    x + offset,
+                    mean,
+                    yerr=std,
+                    marker="o",
+                    capsize=3,
+                    color=COLORS[variant],
+                    label=LABELS[variant],
+                )
         ax.set_xticks(x, labels)
         ax.set_title(f"{case} case", fontsize="small")
         ax.set_ylabel(f"{metric.upper()} [m]")
@@ -329,8 +406,14 @@ def _shade(ax, interaction: np.ndarray, dt: float) -> None:
     padded = np.concatenate([[0], interaction.astype(np.int8), [0]])
     edges = np.flatnonzero(np.diff(padded))
     for k, (first, stop) in enumerate(zip(edges[::2], edges[1::2])):
-        ax.axvspan((first - 0.5) * dt, (stop - 0.5) * dt, color="#f2d7a6", alpha=0.6,
-                   zorder=0, label="interaction period" if k == 0 else None)
+        ax.axvspan(
+            (first - 0.5) * dt,
+            (stop - 0.5) * dt,
+            color="#f2d7a6",
+            alpha=0.6,
+            zorder=0,
+            label="interaction period" if k == 0 else None,
+        )
 
 
 def scene_figure(ours: Predictions, other: Predictions, index: int, title: str):
@@ -354,15 +437,24 @@ def scene_figure(ours: Predictions, other: Predictions, index: int, title: str):
             rgba[:, 3] = 0.15 + 0.85 * np.clip(theta, 0.0, 1.0)
             keep = valid[steps, agent]  # (P,)
             xy = pred.pred_mean[index, :, agent]  # (P, 2)
-            ax.scatter(xy[keep, 0], xy[keep, 1], s=sizes[keep], c=rgba[keep],
-                       edgecolors="none", zorder=3,
-                       label=LABELS[variant] if agent == 0 else None)
+            ax.scatter(
+                xy[keep, 0],
+                xy[keep, 1],
+                s=sizes[keep],
+                c=rgba[keep],
+                edgecolors="none",
+                zorder=3,
+                label=LABELS[variant] if agent == 0 else None,
+            )
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.legend(fontsize="small", loc="upper left")
-    ax.set_title("predictions (dots; darker = more attention on the other main car, larger = "
-                 "later) and truth (lines)", fontsize="small")
+    ax.set_title(
+        "predictions (dots; darker = more attention on the other main car, larger = "
+        "later) and truth (lines)",
+        fontsize="small",
+    )
     for row, (agent, target) in enumerate(((0, 1), (1, 0)), start=1):
         _attention_axes(fig.add_subplot(grid[row]), ours, other, index, agent, target)
     fig.suptitle(title)
@@ -375,24 +467,33 @@ def _rgba(color: str) -> tuple[float, float, float, float]:
     return to_rgba(color)
 
 
-def _attention_axes(ax, ours: Predictions, other: Predictions, index: int, agent: int,
-                    target: int) -> None:
+def _attention_axes(
+    ax, ours: Predictions, other: Predictions, index: int, agent: int, target: int
+) -> None:
     time = np.arange(ours.attention.shape[1]) * ours.dt  # (T-1,) [s]
     _shade(ax, ours.interaction[index], ours.dt)
     label = (ours.attention_label[index, :-1, agent] == target).astype(float)  # (T-1,)
-    ax.step(time, label, where="mid", color="black", linestyle="--", linewidth=1.0,
-            label="ground truth")
+    ax.step(
+        time, label, where="mid", color="black", linestyle="--", linewidth=1.0, label="ground truth"
+    )
     for pred, variant in ((other, "s_attn"), (ours, "ours")):
-        ax.plot(time, pred.attention[index, :, agent, target], color=COLORS[variant],
-                marker="o", markersize=2.5, label=LABELS[variant])
+        ax.plot(
+            time,
+            pred.attention[index, :, agent, target],
+            color=COLORS[variant],
+            marker="o",
+            markersize=2.5,
+            label=LABELS[variant],
+        )
     ax.axvline((ours.num_observed - 1) * ours.dt, color="black", linewidth=1.0)
     roles = ours.roles[index]
     names = [ours.role_names[roles[k]] for k in (agent, target)]
     ax.set_ylim(-0.05, 1.05)
     ax.set_ylabel("attention")
     ax.set_xlabel("time [s] (vertical line: last observed step)")
-    ax.set_title(f"attention of {names[0]} on {names[1]}", fontsize="small",
-                 color=role_color(names[0]))
+    ax.set_title(
+        f"attention of {names[0]} on {names[1]}", fontsize="small", color=role_color(names[0])
+    )
     if agent == 1:
         _legend_below(ax.figure, ax)
 
@@ -431,9 +532,15 @@ def machine_info(jobs: int) -> dict:
                 break
     except OSError:
         pass
-    return {"cores": os.cpu_count(), "cpu_model": model, "torch": torch.__version__,
-            "torch_threads_per_job": 1, "jobs": jobs, "python": platform.python_version(),
-            "platform": platform.platform()}
+    return {
+        "cores": os.cpu_count(),
+        "cpu_model": model,
+        "torch": torch.__version__,
+        "torch_threads_per_job": 1,
+        "jobs": jobs,
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+    }
 
 
 def dataset_info(path: str) -> dict:
@@ -444,13 +551,14 @@ def dataset_info(path: str) -> dict:
     counts = {}
     for split in ("train", "val", "test"):
         case = read_split(path, split).case
-        counts[split] = {role: int((case == meta.case_names.index(name)).sum())
-                         for role, name in names.items()}
+        counts[split] = {
+            role: int((case == meta.case_names.index(name)).sum()) for role, name in names.items()
+        }
     return {"path": path, "scenario": meta.scenario, "case_names": names, "counts": counts}
 
 
 def fmt(summary: dict, digits: int = 3) -> str:
-    """"mean ± std", "mean" (one value) or "n/a"."""
+    """ "mean ± std", "mean" (one value) or "n/a"."""
     if summary["mean"] is None:
         return "n/a"
     if summary["std"] is None:
@@ -463,8 +571,7 @@ def table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
 
 
-def results_table(aggregates: dict, setting: str, variants: tuple, group: str,
-                  names: dict) -> str:
+def results_table(aggregates: dict, setting: str, variants: tuple, group: str, names: dict) -> str:
     """Mean ± std of ADE/FDE per case (and, for the headline group, attention accuracy and the
     mean attention weight on the labelled car)."""
     header = ["variant"] + [f"{c} ({names[c]}) {m.upper()}" for c in CASES for m in METRICS]
@@ -478,9 +585,11 @@ def results_table(aggregates: dict, setting: str, variants: tuple, group: str,
         row = [LABELS[variant]] + [fmt(entry[group][c][m]) for c in CASES for m in METRICS]
         if group == HEADLINE:
             fixed = variant in ("average", "correct", "const_vel")  # nothing learned to score
-            row += ["n/a" if fixed else fmt(entry[key][c], digits)
-                    for key, digits in (("attention_accuracy", 2), ("attention_weight", 3))
-                    for c in CASES]
+            row += [
+                "n/a" if fixed else fmt(entry[key][c], digits)
+                for key, digits in (("attention_accuracy", 2), ("attention_weight", 3))
+                for c in CASES
+            ]
         rows.append(row + [str(entry["seeds"])])
     return table(header + ["runs"], rows)
 
@@ -496,30 +605,42 @@ def pvalue_table(tests: dict, setting: str) -> str:
         for case in CASES:
             for metric in METRICS:
                 cell = cells[HEADLINE][case][metric]
-                diff = (None if cell["mean_ours"] is None or cell["mean_other"] is None
-                        else cell["mean_ours"] - cell["mean_other"])
+                diff = (
+                    None
+                    if cell["mean_ours"] is None or cell["mean_other"] is None
+                    else cell["mean_ours"] - cell["mean_other"]
+                )
                 p = "n/a" if cell["p"] is None else f"{cell['p']:.2g}"
                 row.append(p + ("" if diff is None else f" (Δ {diff:+.3f} m)"))
         rows.append(row)
     if not rows:
         return "_No comparison: Ours and S-Attn/Ours-NonSmooth were not both run._"
-    header = ["Welch t-test, p (Δ = Ours − other)"] + [f"{c} {m.upper()}" for c in CASES
-                                                       for m in METRICS]
+    header = ["Welch t-test, p (Δ = Ours − other)"] + [
+        f"{c} {m.upper()}" for c in CASES for m in METRICS
+    ]
     return table(header, rows)
 
 
-def make_figures(report: ReportInput, aggregates: dict, tests: dict, info: dict,
-                 size: list, out: Path) -> dict[str, list[str]]:
+def make_figures(
+    report: ReportInput, aggregates: dict, tests: dict, info: dict, size: list, out: Path
+) -> dict[str, list[str]]:
     """Write every figure under `out`; returns section -> file names."""
     protocol, shown = report.protocol, {}
     for setting in protocol.settings:
         if setting.name in aggregates:
-            fig = bar_figure(aggregates, setting.name, protocol.variants, tests,
-                             info[setting.name]["case_names"], setting.title)
+            fig = bar_figure(
+                aggregates,
+                setting.name,
+                protocol.variants,
+                tests,
+                info[setting.name]["case_names"],
+                setting.title,
+            )
             shown.setdefault("bars", []).append(_save(fig, out, f"bars_{setting.name}.png"))
     if any(s in aggregates for s in size):
-        fig = size_figure(aggregates, size, [f"{s}\n({size_label(info[s])})" for s in size],
-                          protocol.variants)
+        fig = size_figure(
+            aggregates, size, [f"{s}\n({size_label(info[s])})" for s in size], protocol.variants
+        )
         shown["size"] = [_save(fig, out, "size_study.png")]
     main = [s.name for s in protocol.settings if s.name in report.scene_files]
     preferred = [s for s in main if s in ("dm_r0.3", "hc_stop")] or main[:1]
@@ -528,14 +649,16 @@ def make_figures(report: ReportInput, aggregates: dict, tests: dict, info: dict,
         for role, name in info[setting]["case_names"].items():
             rows = np.flatnonzero(ours.case == ours.case_names.index(name))
             if len(rows):
-                title = (f"{setting}: {role} case ({name}), first test scene with an interaction "
-                         "period; Ours vs S-Attn (training seed 0)")
+                title = (
+                    f"{setting}: {role} case ({name}), first test scene with an interaction "
+                    "period; Ours vs S-Attn (training seed 0)"
+                )
                 fig = scene_figure(ours, other, int(rows[0]), title)
                 shown.setdefault("scenes", []).append(
-                    _save(fig, out, f"scene_{setting}_{role}.png"))
+                    _save(fig, out, f"scene_{setting}_{role}.png")
+                )
     for scenario in dict.fromkeys(s.scenario for s in protocol.settings):
-        path = report.data_paths[next(s.name for s in protocol.settings
-                                      if s.scenario == scenario)]
+        path = report.data_paths[next(s.name for s in protocol.settings if s.scenario == scenario)]
         fig = plot_samples(read_split(path, "test"), read_meta(path), num_per_case=2)
         shown.setdefault("samples", []).append(_save(fig, out, f"samples_{scenario}.png"))
     return shown
@@ -548,7 +671,7 @@ def _save(fig, out: Path, name: str) -> str:
 
 
 def size_label(info: dict) -> str:
-    """"minor+major" training-pool size (train + val) of a dataset."""
+    """ "minor+major" training-pool size (train + val) of a dataset."""
     total = {r: info["counts"]["train"][r] + info["counts"]["val"][r] for r in CASES}
     return f"{total['minor']}+{total['major']}"
 
@@ -558,22 +681,37 @@ def write_report(report: ReportInput, results: Path) -> int:
     protocol = report.protocol
     aggregates, tests = aggregate(report.records), compare(report.records)
     info = {s.name: dataset_info(report.data_paths[s.name]) for s in protocol.settings}
-    size = [s.name for s in sorted((s for s in protocol.settings if s.group == "size"),
-                                   key=lambda s: s.num_major + s.num_minor)]
+    size = [
+        s.name
+        for s in sorted(
+            (s for s in protocol.settings if s.group == "size"),
+            key=lambda s: s.num_major + s.num_minor,
+        )
+    ]
     claim_rows = claims(tests, aggregates, [s.name for s in protocol.settings], size)
     out = results.parent / "results"
     out.mkdir(parents=True, exist_ok=True)
     figures = make_figures(report, aggregates, tests, info, size, out)
-    context = {"date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
-               "machine": machine_info(report.jobs)}
+    context = {
+        "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+        "machine": machine_info(report.jobs),
+    }
     document = {
-        **context, "command": report.command, "wall_seconds": round(report.seconds, 1),
+        **context,
+        "command": report.command,
+        "wall_seconds": round(report.seconds, 1),
         "statistics": STATISTICS,
-        "protocol": {**{k: v for k, v in asdict(protocol).items() if k != "settings"},
-                     "settings": [asdict(s) for s in protocol.settings]},
-        "datasets": info, "counts": {k: v for k, v in report.counts.items()
-                                     if k != "job_seconds"},
-        "runs": report.records, "aggregates": aggregates, "tests": tests, "claims": claim_rows}
+        "protocol": {
+            **{k: v for k, v in asdict(protocol).items() if k != "settings"},
+            "settings": [asdict(s) for s in protocol.settings],
+        },
+        "datasets": info,
+        "counts": {k: v for k, v in report.counts.items() if k != "job_seconds"},
+        "runs": report.records,
+        "aggregates": aggregates,
+        "tests": tests,
+        "claims": claim_rows,
+    }
     with atomic_output(results.with_name("results.json")) as temp:
         temp.write_text(json.dumps(document, indent=1) + "\n")
     text = render(report, context, aggregates, tests, info, size, claim_rows, figures, results)
@@ -582,63 +720,104 @@ def write_report(report: ReportInput, results: Path) -> int:
     return sum(len(names) for names in figures.values())
 
 
-def render(report: ReportInput, context: dict, aggregates: dict, tests: dict, info: dict,
-           size: list, claim_rows: list, figures: dict, results: Path) -> str:
+def render(
+    report: ReportInput,
+    context: dict,
+    aggregates: dict,
+    tests: dict,
+    info: dict,
+    size: list,
+    claim_rows: list,
+    figures: dict,
+    results: Path,
+) -> str:
     """The markdown text."""
     protocol, counts, machine = report.protocol, report.counts, context["machine"]
-    parts = ["# Reproduction of the paper's synthetic experiments\n",
-             "Written by `tools/reproduce.py`; do not edit by hand (the discussion at the end "
-             "comes from `results_notes.md` beside this file)."]
+    parts = [
+        "# Reproduction of the paper's synthetic experiments\n",
+        "Written by `tools/reproduce.py`; do not edit by hand (the discussion at the end "
+        "comes from `results_notes.md` beside this file).",
+    ]
     if protocol.quick:
-        parts.append("\n> **Quick smoke run (`--quick`)**: tiny datasets, few epochs and seeds. "
-                     "These numbers exercise the pipeline and say nothing about the paper.")
+        parts.append(
+            "\n> **Quick smoke run (`--quick`)**: tiny datasets, few epochs and seeds. "
+            "These numbers exercise the pipeline and say nothing about the paper."
+        )
     seeds = f"training seeds 0..{protocol.seeds - 1}" if protocol.seeds > 1 else "seed 0"
     compute_h = sum(r["train_seconds"] or 0.0 for r in report.records) / 3600
-    parts += ["\n## How this was produced\n", "\n".join([
-        f"- Command: `{report.command}`",
-        f"- Date: {context['date']}",
-        f"- Wall time: {report.seconds / 60:.1f} min for this invocation; the training time "
-        f"recorded in all runs sums to {compute_h:.2f} h (one thread each)",
-        history_line(report.history),
-        f"- Machine: {machine['cores']} cores, {machine['cpu_model']}; torch "
-        f"{machine['torch']}, {machine['torch_threads_per_job']} torch thread per job, "
-        f"{machine['jobs']} parallel jobs; Python {machine['python']}",
-        f"- Epochs: {protocol.epochs}; seeds per trained variant: {protocol.seeds} ({seeds}); "
-        f"`const_vel` once per setting (deterministic)",
-        f"- Runs: {counts['runs']} ({counts['trained']} trained now, {counts['resumed']} "
-        f"resumed, {counts['reused']} reused from the cache, {counts['failed']} failed); "
-        f"datasets: {counts['datasets_generated']} generated, {counts['datasets_reused']} reused",
-        f"- Statistics: {STATISTICS}",
-        "- Machine-readable results (per run and aggregated): `results.json` beside this file",
-    ])]
+    parts += [
+        "\n## How this was produced\n",
+        "\n".join(
+            [
+                f"- Command: `{report.command}`",
+                f"- Date: {context['date']}",
+                f"- Wall time: {report.seconds / 60:.1f} min for this invocation; "
+                f"the training time recorded in all runs sums to {compute_h:.2f} h "
+                "(one thread each)",
+                history_line(report.history),
+                f"- Machine: {machine['cores']} cores, {machine['cpu_model']}; torch "
+                f"{machine['torch']}, {machine['torch_threads_per_job']} torch thread per job, "
+                f"{machine['jobs']} parallel jobs; Python {machine['python']}",
+                f"- Epochs: {protocol.epochs}; "
+                f"seeds per trained variant: {protocol.seeds} ({seeds}); "
+                f"`const_vel` once per setting (deterministic)",
+                f"- Runs: {counts['runs']} ({counts['trained']} trained now, {counts['resumed']} "
+                f"resumed, {counts['reused']} reused from the cache, {counts['failed']} failed); "
+                f"datasets: {counts['datasets_generated']} generated, "
+                f"{counts['datasets_reused']} reused",
+                f"- Statistics: {STATISTICS}",
+                "- Machine-readable results (per run and aggregated): "
+                "`results.json` beside this file",
+            ]
+        ),
+    ]
     if counts.get("failures"):
-        parts.append("\nFailed runs (diverged):\n\n" + "\n".join(
-            f"- `{line}`" for line in counts["failures"]))
+        parts.append(
+            "\nFailed runs (diverged):\n\n"
+            + "\n".join(f"- `{line}`" for line in counts["failures"])
+        )
     parts += ["\n## Settings and datasets\n", settings_table(report, info), "", NOTES]
     parts.append("\n## Results (main cars: the two interacting cars)\n")
     for setting in protocol.settings:
         names = info[setting.name]["case_names"]
-        parts += [f"\n### `{setting.name}`: {setting.title}\n",
-                  results_table(aggregates, setting.name, protocol.variants, HEADLINE, names),
-                  "", pvalue_table(tests, setting.name), "",
-                  "<details><summary>All agents (22 cars)</summary>\n",
-                  results_table(aggregates, setting.name, protocol.variants, "all_agents",
-                                names), "\n</details>"]
+        parts += [
+            f"\n### `{setting.name}`: {setting.title}\n",
+            results_table(aggregates, setting.name, protocol.variants, HEADLINE, names),
+            "",
+            pvalue_table(tests, setting.name),
+            "",
+            "<details><summary>All agents (22 cars)</summary>\n",
+            results_table(aggregates, setting.name, protocol.variants, "all_agents", names),
+            "\n</details>",
+        ]
         if f"bars_{setting.name}.png" in figures.get("bars", []):
             parts.append(f"\n![ADE/FDE {setting.name}](results/bars_{setting.name}.png)")
-    parts += ["\n## Training-set size study (Double Merge, Fig. 4)\n", size_section(
-        aggregates, size, info, figures)]
-    parts += ["\n## Paper claims\n", CLAIM_RULES, "", table(
-        ["setting", "claim"] + [f"{c} {m.upper()}" for c in CASES for m in METRICS],
-        [[f"`{r['setting']}`", r["claim"], *r["cells"].values()] for r in claim_rows])]
+    parts += [
+        "\n## Training-set size study (Double Merge, Fig. 4)\n",
+        size_section(aggregates, size, info, figures),
+    ]
+    parts += [
+        "\n## Paper claims\n",
+        CLAIM_RULES,
+        "",
+        table(
+            ["setting", "claim"] + [f"{c} {m.upper()}" for c in CASES for m in METRICS],
+            [[f"`{r['setting']}`", r["claim"], *r["cells"].values()] for r in claim_rows],
+        ),
+    ]
     parts.append("\n## Trajectories and attention (Fig. 6)\n")
     parts += [f"![scene](results/{name})\n" for name in figures.get("scenes", [])] or [
-        "_Needs Ours and S-Attn (seed 0) of at least one setting._"]
+        "_Needs Ours and S-Attn (seed 0) of at least one setting._"
+    ]
     parts.append("\n## Sample trajectories (test split, ground-truth experts)\n")
     parts += [f"![samples](results/{name})\n" for name in figures.get("samples", [])]
     notes = results.with_name("results_notes.md")
-    parts += ["\n## Discussion\n", notes.read_text().rstrip() if notes.is_file() else
-              f"_No `{notes.name}` yet: the lead writes it after looking at the results._"]
+    parts += [
+        "\n## Discussion\n",
+        notes.read_text().rstrip()
+        if notes.is_file()
+        else f"_No `{notes.name}` yet: the lead writes it after looking at the results._",
+    ]
     return "\n".join(parts) + "\n"
 
 
@@ -657,13 +836,15 @@ NOTES = """Notes on the protocol:
   Ours-Average and Ours-Correct, whose attention is fixed (by construction accuracy 0 and
   weight 1/21 for Average, 1 and 1 for Correct); the raw numbers are in `results.json`."""
 
-CLAIM_RULES = (f"Rules: **holds** = Ours has the lower mean and p < alpha (alpha = "
-               f"{ALPHA_S_ATTN} against S-Attn, as in the paper; {ALPHA} otherwise); **not "
-               "significant** = lower mean, p >= alpha; **does not hold** = Ours' mean is not "
-               f"lower. For Ours-Correct: **holds** unless Correct is better with p < {ALPHA} "
-               "(difference relative to Correct). Size study: the mean margin NonSmooth − Ours "
-               "should fall from the smallest to the largest training set (**partly**: only "
-               "smallest > largest).")
+CLAIM_RULES = (
+    f"Rules: **holds** = Ours has the lower mean and p < alpha (alpha = "
+    f"{ALPHA_S_ATTN} against S-Attn, as in the paper; {ALPHA} otherwise); **not "
+    "significant** = lower mean, p >= alpha; **does not hold** = Ours' mean is not "
+    f"lower. For Ours-Correct: **holds** unless Correct is better with p < {ALPHA} "
+    "(difference relative to Correct). Size study: the mean margin NonSmooth − Ours "
+    "should fall from the smallest to the largest training set (**partly**: only "
+    "smallest > largest)."
+)
 
 
 def history_line(history) -> str:
@@ -671,10 +852,15 @@ def history_line(history) -> str:
     if not history:
         return "- Training invocations logged in the cache: none"
     total = sum(entry["seconds"] for entry in history) / 60
-    items = "; ".join(f"{entry['date']}: {entry['seconds'] / 60:.1f} min, "
-                      f"{entry['runs']} runs, `{entry['command']}`" for entry in history)
-    return (f"- Training invocations logged in the cache: {len(history)}, {total:.1f} min wall "
-            f"in all ({items})")
+    items = "; ".join(
+        f"{entry['date']}: {entry['seconds'] / 60:.1f} min, "
+        f"{entry['runs']} runs, `{entry['command']}`"
+        for entry in history
+    )
+    return (
+        f"- Training invocations logged in the cache: {len(history)}, {total:.1f} min wall "
+        f"in all ({items})"
+    )
 
 
 def settings_table(report: ReportInput, info: dict) -> str:
@@ -682,14 +868,37 @@ def settings_table(report: ReportInput, info: dict) -> str:
     for setting in report.protocol.settings:
         data = info[setting.name]
         counts, names = data["counts"], data["case_names"]
-        times = [r["train_seconds"] for r in report.records if r["setting"] == setting.name
-                 and r["variant"] != "const_vel" and r["train_seconds"]]
+        times = [
+            r["train_seconds"]
+            for r in report.records
+            if r["setting"] == setting.name and r["variant"] != "const_vel" and r["train_seconds"]
+        ]
         median = f"{float(np.median(times)) / 60:.1f}" if times else "n/a"
-        rows.append([f"`{setting.name}`", data["scenario"], names["major"], names["minor"],
-                     *(f"{counts[s]['minor']}+{counts[s]['major']}" for s in counts),
-                     median, f"`{Path(data['path']).name}`"])
-    return table(["setting", "scenario", "major case", "minor case", "train (minor+major)",
-                  "val", "test", "median train min/run", "dataset"], rows)
+        rows.append(
+            [
+                f"`{setting.name}`",
+                data["scenario"],
+                names["major"],
+                names["minor"],
+                *(f"{counts[s]['minor']}+{counts[s]['major']}" for s in counts),
+                median,
+                f"`{Path(data['path']).name}`",
+            ]
+        )
+    return table(
+        [
+            "setting",
+            "scenario",
+            "major case",
+            "minor case",
+            "train (minor+major)",
+            "val",
+            "test",
+            "median train min/run",
+            "dataset",
+        ],
+        rows,
+    )
 
 
 def size_section(aggregates: dict, size: list, info: dict, figures: dict) -> str:
@@ -698,10 +907,18 @@ def size_section(aggregates: dict, size: list, info: dict, figures: dict) -> str
     rows = []
     for k, setting in enumerate(size):
         cells = [size_margins(aggregates, size, c, m)[k] for c in CASES for m in METRICS]
-        rows.append([f"`{setting}`", size_label(info[setting]),
-                     *("n/a" if v is None else f"{v:+.3f}" for v in cells)])
-    text = table(["setting", "minor+major"] + [f"NonSmooth − Ours {c} {m.upper()} [m]"
-                                               for c in CASES for m in METRICS], rows)
+        rows.append(
+            [
+                f"`{setting}`",
+                size_label(info[setting]),
+                *("n/a" if v is None else f"{v:+.3f}" for v in cells),
+            ]
+        )
+    text = table(
+        ["setting", "minor+major"]
+        + [f"NonSmooth − Ours {c} {m.upper()} [m]" for c in CASES for m in METRICS],
+        rows,
+    )
     if "size" in figures:
         text += "\n\n![size study](results/size_study.png)"
     return text

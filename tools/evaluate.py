@@ -40,14 +40,27 @@ def parse_args(argv: list[str] | None = None):
     source.add_argument("--run", help="run directory written by tools/train.py")
     source.add_argument("--baseline", choices=BASELINES, help="a baseline without training")
     parser.add_argument("--data", required=True, help="dataset file (HDF5, schema v1)")
-    parser.add_argument("--split", default="test", choices=("train", "val", "test"),
-                        help="split to evaluate (default test)")
-    parser.add_argument("--checkpoint", default="best", choices=("best", "last"),
-                        help="which checkpoint of --run (default best)")
-    parser.add_argument("--out", default=None,
-                        help="JSON output (default RUN/eval.json; none for a baseline)")
-    parser.add_argument("--save-predictions", default=None, metavar="FILE.npz",
-                        help="also write the predictions for tools/plot.py")
+    parser.add_argument(
+        "--split",
+        default="test",
+        choices=("train", "val", "test"),
+        help="split to evaluate (default test)",
+    )
+    parser.add_argument(
+        "--checkpoint",
+        default="best",
+        choices=("best", "last"),
+        help="which checkpoint of --run (default best)",
+    )
+    parser.add_argument(
+        "--out", default=None, help="JSON output (default RUN/eval.json; none for a baseline)"
+    )
+    parser.add_argument(
+        "--save-predictions",
+        default=None,
+        metavar="FILE.npz",
+        help="also write the predictions for tools/plot.py",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     parser.add_argument("--batch-size", type=int, default=32, help="scenes per forward pass")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
@@ -74,8 +87,10 @@ def check_args(args) -> tuple[Path | None, Path | None]:
 
 def format_table(result: dict, case_names: tuple[str, ...]) -> str:
     """Plain-text table: one row per case and overall."""
-    header = f"{'case':<12}{'ADE main':>10}{'FDE main':>10}{'ADE all':>10}{'FDE all':>10}" \
-             f"{'attn acc':>10}{'scenes':>8}"
+    header = (
+        f"{'case':<12}{'ADE main':>10}{'FDE main':>10}{'ADE all':>10}{'FDE all':>10}"
+        f"{'attn acc':>10}{'scenes':>8}"
+    )
     rows = [header, "-" * len(header)]
 
     def cell(value: float | None) -> str:
@@ -84,8 +99,10 @@ def format_table(result: dict, case_names: tuple[str, ...]) -> str:
     for name in (*case_names, "overall"):
         main, every = _row(result["main_agents"], name), _row(result["all_agents"], name)
         accuracy = _row(result["attention_accuracy"], name)["accuracy"]
-        rows.append(f"{name:<12}{cell(main['ade'])}{cell(main['fde'])}{cell(every['ade'])}"
-                    f"{cell(every['fde'])}{cell(accuracy)}{every['scenes']:>8}")
+        rows.append(
+            f"{name:<12}{cell(main['ade'])}{cell(main['fde'])}{cell(every['ade'])}"
+            f"{cell(every['fde'])}{cell(accuracy)}{every['scenes']:>8}"
+        )
     return "\n".join(rows)
 
 
@@ -96,19 +113,28 @@ def _row(group: dict, name: str) -> dict:
 def evaluate(args, dataset: TrajectoryDataset) -> tuple[dict, object]:
     """Predict and score; returns (JSON-ready result, predictions)."""
     meta, batch = dataset.meta, dataset.all()
-    info: dict = {"data": str(Path(args.data).resolve()), "split": args.split,
-                  "scenes": batch.batch_size, "num_observed": meta.num_observed,
-                  "num_predicted": meta.num_predicted, "dt": meta.dt,
-                  "headline": "main_agents"}
+    info: dict = {
+        "data": str(Path(args.data).resolve()),
+        "split": args.split,
+        "scenes": batch.batch_size,
+        "num_observed": meta.num_observed,
+        "num_predicted": meta.num_predicted,
+        "dt": meta.dt,
+        "headline": "main_agents",
+    }
     if args.baseline:
         predictions = predict_const_vel(batch, meta.num_observed)
         info.update(predictor=args.baseline)
     else:
         model, checkpoint = load_model(Path(args.run) / f"{args.checkpoint}.pt")
         predictions = predict_model(model, batch, meta.num_observed, args.batch_size)
-        info.update(predictor=checkpoint["train_config"]["variant"], run=str(args.run),
-                    checkpoint=f"{args.checkpoint}.pt", epoch=checkpoint["epoch"],
-                    train_data=checkpoint["data"]["path"])
+        info.update(
+            predictor=checkpoint["train_config"]["variant"],
+            run=str(args.run),
+            checkpoint=f"{args.checkpoint}.pt",
+            epoch=checkpoint["epoch"],
+            train_data=checkpoint["data"]["path"],
+        )
     result = {**info, **score(predictions, batch, meta.num_observed, meta.case_names)}
     return result, predictions
 
@@ -132,11 +158,20 @@ def main(argv: list[str] | None = None) -> None:
             temp.write_text(json.dumps(result, indent=2) + "\n")
     if npz_out is not None:
         with atomic_output(npz_out) as temp:
-            save_predictions(temp, predictions, dataset.all(), meta.num_observed, meta.dt,
-                             meta.case_names, meta.role_names)
+            save_predictions(
+                temp,
+                predictions,
+                dataset.all(),
+                meta.num_observed,
+                meta.dt,
+                meta.case_names,
+                meta.role_names,
+            )
     written = ", ".join(str(p) for p in (json_out, npz_out) if p is not None) or "nothing written"
-    print(f"{result['predictor']} on {result['scenes']} {args.split} scenes in "
-          f"{time.perf_counter() - started:.1f} s: {headline(result)} ({written})")
+    print(
+        f"{result['predictor']} on {result['scenes']} {args.split} scenes in "
+        f"{time.perf_counter() - started:.1f} s: {headline(result)} ({written})"
+    )
 
 
 if __name__ == "__main__":

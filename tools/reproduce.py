@@ -96,14 +96,24 @@ SETTINGS = (
     Setting("dm_r0.3", "double_merge", "major", 50, 15, "ratio", "Double Merge, minor ratio 0.3"),
     Setting("dm_r0.8", "double_merge", "major", 50, 40, "ratio", "Double Merge, minor ratio 0.8"),
     Setting("dm_3+10", "double_merge", "major", 10, 3, "size", "Double Merge, 3 minor + 10 major"),
-    Setting("dm_15+30", "double_merge", "major", 30, 15, "size",
-            "Double Merge, 15 minor + 30 major"),
-    Setting("dm_30+100", "double_merge", "major", 100, 30, "size",
-            "Double Merge, 30 minor + 100 major"),
-    Setting("hc_stop", "halting_car", "stop", 50, 15, "halting",
-            "Halting Car, stop major, minor ratio 0.3"),
-    Setting("hc_go", "halting_car", "go", 50, 15, "halting",
-            "Halting Car, go major, minor ratio 0.3"),
+    Setting(
+        "dm_15+30", "double_merge", "major", 30, 15, "size", "Double Merge, 15 minor + 30 major"
+    ),
+    Setting(
+        "dm_30+100", "double_merge", "major", 100, 30, "size", "Double Merge, 30 minor + 100 major"
+    ),
+    Setting(
+        "hc_stop",
+        "halting_car",
+        "stop",
+        50,
+        15,
+        "halting",
+        "Halting Car, stop major, minor ratio 0.3",
+    ),
+    Setting(
+        "hc_go", "halting_car", "go", 50, 15, "halting", "Halting Car, go major, minor ratio 0.3"
+    ),
 )
 SETTING_BY_NAME = {s.name: s for s in SETTINGS}
 GROUPS = {
@@ -149,13 +159,28 @@ class DataSpec:
 
     @property
     def stem(self) -> str:
-        return (f"{self.scenario}_{self.major_case}-major_{self.num_minor}+{self.num_major}"
-                f"_test{self.num_test}_seed{self.seed}_{self.scenario_digest}")
+        return (
+            f"{self.scenario}_{self.major_case}-major_{self.num_minor}+{self.num_major}"
+            f"_test{self.num_test}_seed{self.seed}_{self.scenario_digest}"
+        )
 
     def argv(self, out: Path) -> list[str]:
-        return ["--scenario", self.scenario, "--major-case", self.major_case,
-                "--num-major", str(self.num_major), "--num-minor", str(self.num_minor),
-                "--num-test", str(self.num_test), "--seed", str(self.seed), "--out", str(out)]
+        return [
+            "--scenario",
+            self.scenario,
+            "--major-case",
+            self.major_case,
+            "--num-major",
+            str(self.num_major),
+            "--num-minor",
+            str(self.num_minor),
+            "--num-test",
+            str(self.num_test),
+            "--seed",
+            str(self.seed),
+            "--out",
+            str(out),
+        ]
 
 
 @dataclass(frozen=True)
@@ -182,8 +207,15 @@ def data_spec(protocol: Protocol, setting: Setting) -> DataSpec:
 
     num_major, num_minor = protocol.counts(setting)
     config = asdict(SCENARIOS[setting.scenario]().config)
-    return DataSpec(setting.scenario, setting.major_case, num_major, num_minor,
-                    protocol.num_test, protocol.data_seed, digest(config))
+    return DataSpec(
+        setting.scenario,
+        setting.major_case,
+        num_major,
+        num_minor,
+        protocol.num_test,
+        protocol.data_seed,
+        digest(config),
+    )
 
 
 def run_configs(variant: str, seed: int, epochs: int) -> tuple:
@@ -217,8 +249,16 @@ def setting_jobs(protocol: Protocol, setting: Setting, out_dir: Path) -> list[Jo
         seeds = [0] if variant == BASELINE else range(protocol.seeds)
         for seed in seeds:
             directory = run_dir(out_dir, spec, variant, seed, protocol.epochs)
-            jobs.append(Job(path, variant, seed, protocol.epochs, str(directory),
-                            variant in FIGURE_VARIANTS and seed == 0))
+            jobs.append(
+                Job(
+                    path,
+                    variant,
+                    seed,
+                    protocol.epochs,
+                    str(directory),
+                    variant in FIGURE_VARIANTS and seed == 0,
+                )
+            )
     return jobs
 
 
@@ -298,8 +338,15 @@ def _train(job: Job) -> str:
     directory = Path(job.run_dir)
     resume = (directory / "last.pt").is_file()
     model_cfg, train_cfg = run_configs(job.variant, job.seed, job.epochs)
-    train(job.data_path, model_cfg, train_cfg, directory, resume=resume, overwrite=not resume,
-          progress=False)
+    train(
+        job.data_path,
+        model_cfg,
+        train_cfg,
+        directory,
+        resume=resume,
+        overwrite=not resume,
+        progress=False,
+    )
     return "resumed" if resume else "trained"
 
 
@@ -331,24 +378,40 @@ def _evaluate(job: Job) -> None:
     directory.mkdir(parents=True, exist_ok=True)
     test = TrajectoryDataset(job.data_path, "test")
     meta, batch = test.meta, test.all()
-    info = {"variant": job.variant, "seed": job.seed, "epochs": job.epochs,
-            "data": job.data_path, "major_case": meta.major_case,
-            "case_names": list(meta.case_names), "scenes": batch.batch_size}
+    info = {
+        "variant": job.variant,
+        "seed": job.seed,
+        "epochs": job.epochs,
+        "data": job.data_path,
+        "major_case": meta.major_case,
+        "case_names": list(meta.case_names),
+        "scenes": batch.batch_size,
+    }
     if job.variant == BASELINE:
         predictions = predict_const_vel(batch, meta.num_observed)
         info.update(epochs=0, train_seconds=0.0)
     else:
         model, checkpoint = load_model(directory / "best.pt")
         predictions = predict_model(model, batch, meta.num_observed)
-        info.update(checkpoint="best.pt", best_epoch=int(checkpoint["epoch"]),
-                    train_seconds=_train_seconds(directory / "metrics.jsonl"))
+        info.update(
+            checkpoint="best.pt",
+            best_epoch=int(checkpoint["epoch"]),
+            train_seconds=_train_seconds(directory / "metrics.jsonl"),
+        )
     result = score(predictions, batch, meta.num_observed, meta.case_names)
     if job.save_scenes:
         rows = figure_scenes(test.data.case, test.data.interaction, len(meta.case_names))
         subset = Predictions(predictions.pred_mean[rows], predictions.attention[rows])
         with atomic_output(directory / "scenes.npz") as temp:
-            save_predictions(temp, subset, collate_batch([test[i] for i in rows]),
-                             meta.num_observed, meta.dt, meta.case_names, meta.role_names)
+            save_predictions(
+                temp,
+                subset,
+                collate_batch([test[i] for i in rows]),
+                meta.num_observed,
+                meta.dt,
+                meta.case_names,
+                meta.role_names,
+            )
     info["eval_seconds"] = time.perf_counter() - started
     with atomic_output(directory / "eval.json") as temp:
         temp.write_text(json.dumps({**info, **result}, indent=1) + "\n")
@@ -367,8 +430,9 @@ def run_parallel(function, items: list, jobs: int, desc: str) -> list:
     if not items:
         return results
     context = multiprocessing.get_context("spawn")  # never fork a process that imported torch
-    executor = ProcessPoolExecutor(min(jobs, len(items)), mp_context=context,
-                                   initializer=_init_worker)
+    executor = ProcessPoolExecutor(
+        min(jobs, len(items)), mp_context=context, initializer=_init_worker
+    )
     bar = tqdm(total=len(items), desc=desc, unit="job", file=sys.stderr, dynamic_ncols=True)
     try:
         futures = {executor.submit(function, item): k for k, item in enumerate(items)}
@@ -422,8 +486,9 @@ def scene_files(protocol: Protocol, out_dir: Path) -> dict:
     found = {}
     for setting in protocol.settings:
         spec = data_spec(protocol, setting)
-        files = {v: run_dir(out_dir, spec, v, 0, protocol.epochs) / "scenes.npz"
-                 for v in FIGURE_VARIANTS}
+        files = {
+            v: run_dir(out_dir, spec, v, 0, protocol.epochs) / "scenes.npz" for v in FIGURE_VARIANTS
+        }
         if all(path.is_file() for path in files.values()):
             found[setting.name] = {v: str(path) for v, path in files.items()}
     return found
@@ -432,35 +497,62 @@ def scene_files(protocol: Protocol, out_dir: Path) -> dict:
 # ---------------------------------------------------------------------------------- CLI
 def parse_args(argv: list[str] | None = None):
     parser = ArgumentParser(prog="reproduce.py", description=__doc__.splitlines()[0])
-    parser.add_argument("--settings", default="all",
-                        help="comma-separated setting or group names: "
-                             f"{', '.join(SETTING_BY_NAME)}; {', '.join(GROUPS)} (default all)")
-    parser.add_argument("--variants", default="all",
-                        help=f"comma-separated: {', '.join(ALL_VARIANTS)}, or all (default all)")
-    parser.add_argument("--seeds", type=int, default=None,
-                        help=f"training seeds 0..k-1 per variant (default {PAPER_SEEDS}, "
-                             f"--quick {QUICK_SEEDS})")
-    parser.add_argument("--epochs", type=int, default=None,
-                        help=f"training epochs (default {PAPER_EPOCHS}, --quick {QUICK_EPOCHS})")
-    parser.add_argument("--jobs", type=int, default=2,
-                        help="parallel processes, one torch thread each (default 2)")
-    parser.add_argument("--quick", action="store_true",
-                        help=f"tiny smoke version: {QUICK_EPOCHS} epoch(s), {QUICK_SEEDS} seeds, "
-                             f"{QUICK_NUM_TEST} test scenes per case, at most "
-                             f"{QUICK_MAX_MAJOR} major trajectories")
-    parser.add_argument("--out-dir", default=None,
-                        help="cache of datasets and runs (default outputs/reproduce, "
-                             "--quick outputs/reproduce_quick)")
-    parser.add_argument("--results", default=None,
-                        help="markdown report; figures go to results/ beside it "
-                             "(default docs/RESULTS.md, --quick OUT_DIR/RESULTS.md)")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="replace an existing report (cached runs are reused regardless)")
+    parser.add_argument(
+        "--settings",
+        default="all",
+        help="comma-separated setting or group names: "
+        f"{', '.join(SETTING_BY_NAME)}; {', '.join(GROUPS)} (default all)",
+    )
+    parser.add_argument(
+        "--variants",
+        default="all",
+        help=f"comma-separated: {', '.join(ALL_VARIANTS)}, or all (default all)",
+    )
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        default=None,
+        help=f"training seeds 0..k-1 per variant (default {PAPER_SEEDS}, --quick {QUICK_SEEDS})",
+    )
+    parser.add_argument(
+        "--epochs",
+        type=int,
+        default=None,
+        help=f"training epochs (default {PAPER_EPOCHS}, --quick {QUICK_EPOCHS})",
+    )
+    parser.add_argument(
+        "--jobs", type=int, default=2, help="parallel processes, one torch thread each (default 2)"
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"tiny smoke version: {QUICK_EPOCHS} epoch(s), {QUICK_SEEDS} seeds, "
+        f"{QUICK_NUM_TEST} test scenes per case, at most "
+        f"{QUICK_MAX_MAJOR} major trajectories",
+    )
+    parser.add_argument(
+        "--out-dir",
+        default=None,
+        help="cache of datasets and runs (default outputs/reproduce, "
+        "--quick outputs/reproduce_quick)",
+    )
+    parser.add_argument(
+        "--results",
+        default=None,
+        help="markdown report; figures go to results/ beside it "
+        "(default docs/RESULTS.md, --quick OUT_DIR/RESULTS.md)",
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing report (cached runs are reused regardless)",
+    )
     return parser.parse_args(argv)
 
 
-def pick(text: str, known: tuple[str, ...], groups: dict[str, tuple[str, ...]], what: str
-         ) -> tuple[str, ...]:
+def pick(
+    text: str, known: tuple[str, ...], groups: dict[str, tuple[str, ...]], what: str
+) -> tuple[str, ...]:
     """Names from a comma list (group names expand), in canonical order; exit 2 if unknown."""
     chosen = set()
     for name in (part.strip() for part in text.split(",")):
@@ -478,19 +570,28 @@ def protocol_from_args(args) -> Protocol:
     names = pick(args.settings, tuple(SETTING_BY_NAME), GROUPS, "setting")
     variants = pick(args.variants, ALL_VARIANTS, {"all": ALL_VARIANTS}, "variant")
     seeds = args.seeds if args.seeds is not None else (QUICK_SEEDS if args.quick else PAPER_SEEDS)
-    epochs = args.epochs if args.epochs is not None else (
-        QUICK_EPOCHS if args.quick else PAPER_EPOCHS)
+    epochs = (
+        args.epochs if args.epochs is not None else (QUICK_EPOCHS if args.quick else PAPER_EPOCHS)
+    )
     for flag, value in (("--seeds", seeds), ("--epochs", epochs), ("--jobs", args.jobs)):
         if value < 1:
             fail(f"{flag} must be at least 1, got {value}")
-    return Protocol(tuple(SETTING_BY_NAME[n] for n in names), variants, seeds, epochs,
-                    QUICK_NUM_TEST if args.quick else NUM_TEST, DATA_SEED, args.quick)
+    return Protocol(
+        tuple(SETTING_BY_NAME[n] for n in names),
+        variants,
+        seeds,
+        epochs,
+        QUICK_NUM_TEST if args.quick else NUM_TEST,
+        DATA_SEED,
+        args.quick,
+    )
 
 
 def output_paths(args) -> tuple[Path, Path]:
     """(cache directory, markdown path); exit 2 if the report exists without --overwrite."""
-    out_dir = Path(args.out_dir or ("outputs/reproduce_quick" if args.quick
-                                    else "outputs/reproduce"))
+    out_dir = Path(
+        args.out_dir or ("outputs/reproduce_quick" if args.quick else "outputs/reproduce")
+    )
     results = Path(args.results or (out_dir / "RESULTS.md" if args.quick else "docs/RESULTS.md"))
     if results.suffix.lower() != ".md":
         fail(f"--results must name a .md file, got {results}")
@@ -511,13 +612,17 @@ def execute(protocol: Protocol, out_dir: Path, jobs: int) -> dict:
     # variant), so a rerun with a smaller --seeds reports from the cache alone.
     todo = sorted((job for job in all_jobs if read_eval(job) is None), key=lambda j: j.seed)
     outcomes = run_parallel(run_job, todo, jobs, "runs")
-    counts = {"datasets_generated": data_status.count("generated"),
-              "datasets_reused": data_status.count("reused"),
-              "runs": len(all_jobs), "reused": len(all_jobs) - len(todo)}
+    counts = {
+        "datasets_generated": data_status.count("generated"),
+        "datasets_reused": data_status.count("reused"),
+        "runs": len(all_jobs),
+        "reused": len(all_jobs) - len(todo),
+    }
     for status in ("trained", "resumed", "failed"):
         counts[status] = sum(o["status"] == status for o in outcomes)
-    counts["failures"] = [f"{job.run_dir}: {o['error']}" for job, o in zip(todo, outcomes)
-                          if o["status"] == "failed"]
+    counts["failures"] = [
+        f"{job.run_dir}: {o['error']}" for job, o in zip(todo, outcomes) if o["status"] == "failed"
+    ]
     counts["job_seconds"] = [o["seconds"] for o in outcomes if o["status"] != "failed"]
     return counts
 
@@ -528,8 +633,12 @@ def log_invocation(out_dir: Path, command: str, seconds: float, counts: dict) ->
     path = out_dir / INVOCATION_LOG
     trained = counts["trained"] + counts["resumed"]  # jobs run (const_vel: evaluated)
     if trained:
-        entry = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-                 "command": command, "seconds": round(seconds, 1), "runs": trained}
+        entry = {
+            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "command": command,
+            "seconds": round(seconds, 1),
+            "runs": trained,
+        }
         with open(path, "a") as stream:
             stream.write(json.dumps(entry) + "\n")
     if not path.is_file():
@@ -556,24 +665,33 @@ def main(argv: list[str] | None = None) -> None:
         counts = execute(protocol, out_dir, args.jobs)
         history = log_invocation(out_dir, command, time.perf_counter() - started, counts)
         records = collect(protocol, out_dir)
-        paths = {s.name: str(data_path(out_dir, data_spec(protocol, s)))
-                 for s in protocol.settings}
-        report = _report.ReportInput(protocol=protocol, records=records, data_paths=paths,
-                                     scene_files=scene_files(protocol, out_dir),
-                                     command=command, counts=counts, jobs=args.jobs,
-                                     seconds=time.perf_counter() - started, history=history)
+        paths = {s.name: str(data_path(out_dir, data_spec(protocol, s))) for s in protocol.settings}
+        report = _report.ReportInput(
+            protocol=protocol,
+            records=records,
+            data_paths=paths,
+            scene_files=scene_files(protocol, out_dir),
+            command=command,
+            counts=counts,
+            jobs=args.jobs,
+            seconds=time.perf_counter() - started,
+            history=history,
+        )
         figures = _report.write_report(report, results)
     except KeyboardInterrupt:
-        fail("interrupted; finished runs are cached: run the same command again to resume",
-             code=130)
+        fail(
+            "interrupted; finished runs are cached: run the same command again to resume", code=130
+        )
     except (OSError, RuntimeError, ValueError) as err:
         fail(str(err), code=1)
     seconds = time.perf_counter() - started
-    print(f"wrote {results} (+ {results.with_name('results.json').name}, {figures} figures in "
-          f"{results.parent / 'results'}): {counts['runs']} runs ({counts['trained']} trained, "
-          f"{counts['resumed']} resumed, {counts['reused']} reused, {counts['failed']} failed), "
-          f"{counts['datasets_generated']} datasets generated, {counts['datasets_reused']} "
-          f"reused, in {seconds:.1f} s")
+    print(
+        f"wrote {results} (+ {results.with_name('results.json').name}, {figures} figures in "
+        f"{results.parent / 'results'}): {counts['runs']} runs ({counts['trained']} trained, "
+        f"{counts['resumed']} resumed, {counts['reused']} reused, {counts['failed']} failed), "
+        f"{counts['datasets_generated']} datasets generated, {counts['datasets_reused']} "
+        f"reused, in {seconds:.1f} s"
+    )
     if counts["failed"]:
         raise SystemExit(1)
 

@@ -17,19 +17,39 @@ from predictor.evaluation import CheckpointError
 from predictor.format import FormatError
 from predictor.training import RunError, stored_configs, train
 
-MODEL_FLAGS = ("embed_dim", "edge_hidden", "node_hidden", "attn_dim", "position_scale_m",
-               "interaction_scale_m",
-               "step_scale_m", "min_std_m", "init_std_m", "log_std_gain", "mean_prior")
-TRAIN_FLAGS = ("epochs", "batch_size", "lr", "beta1", "beta2", "tau", "grad_clip_norm",
-               "eval_every", "threads")
+MODEL_FLAGS = (
+    "embed_dim",
+    "edge_hidden",
+    "node_hidden",
+    "attn_dim",
+    "position_scale_m",
+    "interaction_scale_m",
+    "step_scale_m",
+    "min_std_m",
+    "init_std_m",
+    "log_std_gain",
+    "mean_prior",
+)
+TRAIN_FLAGS = (
+    "epochs",
+    "batch_size",
+    "lr",
+    "beta1",
+    "beta2",
+    "tau",
+    "grad_clip_norm",
+    "eval_every",
+    "threads",
+)
 
 
 def parse_args(argv: list[str] | None = None):
     parser = ArgumentParser(prog="train.py", description="Train a smooth-attention predictor.")
     parser.add_argument("--data", required=True, help="dataset file (HDF5, schema v1)")
     parser.add_argument("--out", required=True, help="run directory (created)")
-    parser.add_argument("--variant", default=None, choices=sorted(VARIANTS),
-                        help="model variant (default ours)")
+    parser.add_argument(
+        "--variant", default=None, choices=sorted(VARIANTS), help="model variant (default ours)"
+    )
     parser.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
     parser.add_argument("--overwrite", action="store_true", help="start over in a non-empty --out")
@@ -37,13 +57,21 @@ def parse_args(argv: list[str] | None = None):
     defaults_t, defaults_m = TrainConfig(), ModelConfig()
     for name in TRAIN_FLAGS:
         value = getattr(defaults_t, name)
-        parser.add_argument(f"--{name.replace('_', '-')}", type=type(value), default=None,
-                            help=f"TrainConfig.{name} (default {value}"
-                                 + (", 0 for non-smooth variants)" if name == "beta2" else ")"))
+        parser.add_argument(
+            f"--{name.replace('_', '-')}",
+            type=type(value),
+            default=None,
+            help=f"TrainConfig.{name} (default {value}"
+            + (", 0 for non-smooth variants)" if name == "beta2" else ")"),
+        )
     for name in MODEL_FLAGS:
         value = getattr(defaults_m, name)
-        parser.add_argument(f"--{name.replace('_', '-')}", type=type(value), default=None,
-                            help=f"ModelConfig.{name} (default {value})")
+        parser.add_argument(
+            f"--{name.replace('_', '-')}",
+            type=type(value),
+            default=None,
+            help=f"ModelConfig.{name} (default {value})",
+        )
     return parser.parse_args(argv)
 
 
@@ -55,12 +83,17 @@ def given(args, names: tuple[str, ...]) -> dict:
 def configs_for(args) -> tuple[ModelConfig, TrainConfig]:
     """Configs of a new run, or the stored ones (with allowed changes) for --resume."""
     if not args.resume:
-        train_values = {"seed": args.seed if args.seed is not None else 0,
-                        **given(args, TRAIN_FLAGS)}
+        train_values = {
+            "seed": args.seed if args.seed is not None else 0,
+            **given(args, TRAIN_FLAGS),
+        }
         return make_configs(args.variant or "ours", given(args, MODEL_FLAGS), **train_values)
     model_cfg, train_cfg = stored_configs(args.out)
-    fixed = {**given(args, MODEL_FLAGS), **given(args, TRAIN_FLAGS),
-             **{k: v for k, v in (("variant", args.variant), ("seed", args.seed)) if v is not None}}
+    fixed = {
+        **given(args, MODEL_FLAGS),
+        **given(args, TRAIN_FLAGS),
+        **{k: v for k, v in (("variant", args.variant), ("seed", args.seed)) if v is not None},
+    }
     allowed = {"epochs", "threads", "eval_every"}
     for name, value in fixed.items():
         stored = getattr(model_cfg, name, getattr(train_cfg, name, None))
@@ -75,8 +108,15 @@ def main(argv: list[str] | None = None) -> None:
     require_file(args.data, "data file")
     try:
         model_cfg, train_cfg = configs_for(args)
-        result = train(args.data, model_cfg, train_cfg, args.out, resume=args.resume,
-                       overwrite=args.overwrite, progress=not args.no_progress)
+        result = train(
+            args.data,
+            model_cfg,
+            train_cfg,
+            args.out,
+            resume=args.resume,
+            overwrite=args.overwrite,
+            progress=not args.no_progress,
+        )
     except KeyboardInterrupt:
         fail(f"interrupted; continue with --resume --out {args.out}", code=130)
     except FloatingPointError as err:
