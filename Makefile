@@ -20,8 +20,9 @@ venv: $(STAMP)
 demo: venv  ## run the main job on its built-in default and print where the results are
 	$(BIN)/python tools/demo.py
 
-test: venv  ## lint, then the whole test suite
+test: venv  ## lint and format check, then the whole test suite
 	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 	$(BIN)/python -m pytest
 
 bench: venv  ## every benchmark; figures go to benchmarks/results.json

@@ -7,9 +7,10 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 FORBIDDEN = {
-    "carlo_lite": {"scenarios", "predictor", "tools", "benchmarks", "torch", "h5py"},
-    "scenarios": {"predictor", "tools", "benchmarks", "torch", "h5py"},
-    "predictor": {"carlo_lite", "scenarios", "tools", "benchmarks"},
+    "carlo_lite": {"scenarios", "predictor", "pipeline", "tools", "benchmarks", "torch", "h5py"},
+    "scenarios": {"predictor", "pipeline", "tools", "benchmarks", "torch", "h5py"},
+    "predictor": {"carlo_lite", "scenarios", "pipeline", "tools", "benchmarks"},
+    "pipeline": {"tools", "benchmarks"},
 }
 
 

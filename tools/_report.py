@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from _cli import atomic_output
+from pipeline.cli import atomic_output
 from predictor.format import read_meta, read_split
 from predictor.plots import (
     Predictions,

@@ -23,8 +23,8 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
-from _cli import ArgumentParser, fail  # also puts the repository root on sys.path
 from carlo_lite import render_rgb
+from pipeline.cli import ArgumentParser, fail
 from scenarios import SCENARIOS
 from scenarios.rollout import advance
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from _cli import ArgumentParser, atomic_output, check_output, fail, require_file, run_main
+from pipeline.cli import ArgumentParser, atomic_output, check_output, fail, require_file, run_main
 from predictor.baselines import BASELINES
 from predictor.data import TrajectoryDataset
 from predictor.evaluation import (

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from _cli import ArgumentParser, fail  # also puts the repository root on sys.path
+from pipeline.cli import ArgumentParser, fail
 from predictor import __version__
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 from scenarios import SCENARIOS

@@ -7,7 +7,7 @@ Exit status: 0 valid; 1 the file exists but is not a valid dataset; 2 usage erro
 
 from __future__ import annotations
 
-from _cli import ArgumentParser, fail, require_file, run_main
+from pipeline.cli import ArgumentParser, fail, require_file, run_main
 from predictor.format import SCHEMA_VERSION, FormatError, summarize
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from _cli import ArgumentParser, atomic_output, check_output, fail
+from pipeline.cli import ArgumentParser, atomic_output, check_output, fail
 from scenarios import SCENARIOS
 
 STEER_RAD = 0.12  # steering while an arrow key is held

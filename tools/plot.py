@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from _cli import ArgumentParser, atomic_output, check_output, fail, require_file
+from pipeline.cli import ArgumentParser, atomic_output, check_output, fail, require_file
 from predictor.format import SPLITS, FormatError, read_meta, read_split
 from predictor.plots import (
     PlotInputError,

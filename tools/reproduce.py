@@ -64,7 +64,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from _cli import ArgumentParser, atomic_output, fail  # also puts the repository root on sys.path
+from pipeline.cli import ArgumentParser, atomic_output, fail
 
 TRAINED_VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct")
 BASELINE = "const_vel"

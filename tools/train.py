@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 
-from _cli import ArgumentParser, fail, require_file  # also puts the repository root on sys.path
+from pipeline.cli import ArgumentParser, fail, require_file
 from predictor.config import VARIANTS, ModelConfig, TrainConfig, make_configs
 from predictor.evaluation import CheckpointError
 from predictor.format import FormatError

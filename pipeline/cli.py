@@ -1,4 +1,4 @@
-"""Shared helpers for the command-line tools in tools/ (import as `from _cli import ...`).
+"""Shared helpers for the command-line tools in tools/ (`from pipeline.cli import ...`).
 
 - `ArgumentParser`: argparse whose usage errors are one line on stderr with exit status 2.
 - `fail(msg, code=2)`: print one error line to stderr and exit.
@@ -9,9 +9,6 @@
   `path` on success and removed on any failure (Ctrl-C included).
 - `run_main(main, argv)`: run a tool's main; a reader that closed the pipe (`tool | head`) ends
   it quietly with status 1 instead of a BrokenPipeError traceback.
-
-Importing this module also puts the repository root on sys.path, so `python tools/x.py` works from
-a checkout that was not pip-installed.
 """
 
 from __future__ import annotations
@@ -24,10 +21,6 @@ import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import NoReturn
-
-_REPO_ROOT = str(Path(__file__).resolve().parents[1])
-if _REPO_ROOT not in sys.path:
-    sys.path.insert(0, _REPO_ROOT)
 
 
 def run_main(main: Callable[[list[str] | None], None], argv: list[str] | None = None) -> None:
