@@ -1,9 +1,14 @@
-"""tools/generate.py: counts, determinism across runs and workers, atomicity, bad input."""
+"""Dataset generation: pipeline.generation (config validation, counts, determinism across runs
+and workers, atomicity, refusing to overwrite, interrupts) and tools/generate.py (CLI)."""
 
 from __future__ import annotations
 
 import dataclasses
+import errno
+import importlib.util
 import os
+import re
+import select
 import signal
 import subprocess
 import sys
@@ -14,13 +19,19 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from pipeline import generation
+from pipeline.generation import GenerateConfig, default_output, generate_dataset, plan
 from predictor.format import read_dataset, read_meta
+from scenarios import SCENARIOS
+from scenarios.rollout import rollout
 
 REPO = Path(__file__).resolve().parents[1]
 TOOL = REPO / "tools" / "generate.py"
-sys.path.insert(0, str(REPO / "tools"))
+_spec = importlib.util.spec_from_file_location("tool_generate", TOOL)
+generate_tool = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(generate_tool)
 
-import generate  # noqa: E402
+SMALL = dict(num_major=5, num_minor=2, num_test=3)  # 4 + 1 major, 2 + 0 minor, 3 + 3 test
 
 
 def run_tool(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
@@ -33,19 +44,16 @@ def run_tool(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
     )
 
 
-def counts(config: generate.GenerateConfig) -> dict[tuple[str, str], int]:
+def counts(config: GenerateConfig) -> dict[tuple[str, str], int]:
     tally: dict[tuple[str, str], int] = {}
-    for slot in generate.plan(config):
+    for slot in plan(config):
         tally[(slot.split, slot.case)] = tally.get((slot.split, slot.case), 0) + 1
     return tally
 
 
-def config_for(*argv: str) -> generate.GenerateConfig:
-    return generate.config_from_args(generate.parse_args(list(argv)))
-
-
+# ---- config ------------------------------------------------------------------------------------
 def test_default_counts_follow_the_paper():
-    config = config_for("--scenario", "double_merge", "--minor-ratio", "0.3")
+    config = GenerateConfig.for_scenario("double_merge", minor_ratio=0.3)
     assert (config.major_case, config.minor_case) == ("major", "minor")
     assert counts(config) == {
         ("train", "major"): 40,
@@ -55,74 +63,128 @@ def test_default_counts_follow_the_paper():
         ("test", "major"): 50,
         ("test", "minor"): 50,
     }
+    assert GenerateConfig.for_scenario("double_merge") == config  # 0.3 is the default ratio
 
 
 @pytest.mark.parametrize(
-    "argv, minor_pool, major_pool",
+    "kwargs, minor_pool, major_pool",
     [
-        (("--minor-ratio", "0.8"), 40, 50),
-        (("--num-major", "10", "--num-minor", "3"), 3, 10),
-        (("--num-major", "30", "--num-minor", "15"), 15, 30),
-        (("--num-major", "100", "--num-minor", "30"), 30, 100),
-        (("--num-major", "100", "--minor-ratio", "0.3"), 30, 100),
+        (dict(minor_ratio=0.8), 40, 50),
+        (dict(num_major=10, num_minor=3), 3, 10),
+        (dict(num_major=30, num_minor=15), 15, 30),
+        (dict(num_major=100, num_minor=30), 30, 100),
+        (dict(num_major=100, minor_ratio=0.3), 30, 100),
     ],
 )
-def test_paper_settings_counts(argv, minor_pool, major_pool):
-    config = config_for("--scenario", "halting_car", *argv)
+def test_paper_settings_counts(kwargs, minor_pool, major_pool):
+    config = GenerateConfig.for_scenario("halting_car", **kwargs)
     assert (config.major_case, config.minor_case) == ("stop", "go")
     tally = counts(config)
     assert tally[("train", "go")] + tally[("val", "go")] == minor_pool
     assert tally[("train", "stop")] + tally[("val", "stop")] == major_pool
     assert tally[("val", "stop")] == round(0.2 * major_pool)
-    seeds = [slot.seed for slot in generate.plan(config)]
-    assert len(set(seeds)) == len(seeds)
+    seeds = [slot.seed for slot in plan(config)]
+    assert seeds == [generation.SEED_STRIDE * config.seed + k for k in range(len(seeds))]
 
 
-def test_go_as_major_case():
-    config = config_for("--scenario", "halting_car", "--major-case", "go")
-    assert (config.major_case, config.minor_case) == ("go", "stop")
-
-
-def test_round_trip_file_contents(tmp_path):
-    out = tmp_path / "hc.h5"
-    generate.main(
-        [
-            "--scenario",
-            "halting_car",
-            "--num-major",
-            "5",
-            "--num-minor",
-            "2",
-            "--num-test",
-            "3",
-            "--out",
-            str(out),
-        ]
+def test_go_as_major_case_and_cli_builds_the_same_config():
+    config = GenerateConfig.for_scenario("halting_car", major_case="go", num_major=7, seed=2)
+    assert (config.major_case, config.minor_case, config.num_minor) == ("go", "stop", 2)
+    args = generate_tool.parse_args(
+        ["--scenario", "halting_car", "--major-case", "go", "--num-major", "7", "--seed", "2"]
     )
+    assert generate_tool.config_from_args(args) == config
+    assert default_output(config) == Path("data/halting_car_go-major_7+2_seed2.h5")
+
+
+VALID = dict(scenario="halting_car", major_case="stop", minor_case="go")
+
+
+@pytest.mark.parametrize(
+    "changes, field",
+    [
+        (dict(scenario="roundabout"), "scenario"),
+        (dict(major_case="major"), "major_case"),
+        (dict(minor_case="left"), "minor_case"),
+        (dict(minor_case="stop"), "minor_case"),
+        (dict(num_major=0), "num_major"),
+        (dict(num_major=2.5), "num_major"),
+        (dict(num_major=True), "num_major"),
+        (dict(num_minor=-1), "num_minor"),
+        (dict(num_test=-1), "num_test"),
+        (dict(val_fraction=1.0), "val_fraction"),
+        (dict(val_fraction=-0.1), "val_fraction"),
+        (dict(val_fraction=float("nan")), "val_fraction"),
+        (dict(val_fraction="0.2"), "val_fraction"),
+        (dict(seed=-1), "seed"),
+    ],
+)
+def test_config_rejects_bad_fields_in_one_line_naming_the_field(changes, field):
+    with pytest.raises(ValueError) as error:
+        GenerateConfig(**{**VALID, **changes})
+    message = str(error.value)
+    assert field in message and "\n" not in message
+    if "scenario" not in changes:
+        assert message.startswith(field)
+
+
+def test_config_accepts_the_edges_of_its_ranges():
+    config = GenerateConfig(**VALID, num_major=1, num_minor=0, num_test=0, val_fraction=0.0)
+    assert counts(config) == {("train", "stop"): 1}
+
+
+@pytest.mark.parametrize(
+    "kwargs, text",
+    [
+        (dict(minor_ratio=0.3, num_minor=3), "either minor_ratio or num_minor"),
+        (dict(minor_ratio=-0.1), "minor_ratio"),
+        (dict(minor_ratio=1e6), "minor_ratio"),
+        (dict(minor_ratio=float("nan")), "minor_ratio"),
+        (dict(major_case="major"), "major_case"),
+        (dict(num_major=0), "num_major"),
+    ],
+)
+def test_for_scenario_rejects_bad_values(kwargs, text):
+    with pytest.raises(ValueError, match=text):
+        GenerateConfig.for_scenario("halting_car", **kwargs)
+
+
+# ---- generate_dataset --------------------------------------------------------------------------
+def test_round_trip_file_contents(tmp_path):
+    out = tmp_path / "sub" / "hc.h5"  # missing directories are created
+    config = GenerateConfig.for_scenario("halting_car", **SMALL)
+    result = generate_dataset(config, out, progress=False)
+    assert result.path == out and result.rejected == 0 and result.num_agents == 22
+    assert result.counts == {
+        "train": {"stop": 4, "go": 2},
+        "val": {"stop": 1, "go": 0},
+        "test": {"stop": 3, "go": 3},
+    }
+    assert result.summary().startswith(f"wrote {out}: train 4 stop + 2 go; val 1 stop + 0 go;")
     meta, splits = read_dataset(out)
+    assert meta == result.meta
     assert meta.scenario == "halting_car" and meta.major_case == "stop"
-    assert meta.config["generator"]["num_major"] == 5
+    assert meta.config["generator"] == dataclasses.asdict(config)
     assert splits["train"].n == 4 + 2 and splits["val"].n == 1 + 0 and splits["test"].n == 6
     case_names = list(meta.case_names)
     test_cases = [case_names[i] for i in splits["test"].case]
     assert test_cases == ["stop"] * 3 + ["go"] * 3
     # the stored arrays are exactly what the scenario's rollout gives for the stored seeds
-    from scenarios import SCENARIOS
-    from scenarios.rollout import rollout
-
     scenario = SCENARIOS["halting_car"]()
     index = 4
     episode = rollout(scenario, int(splits["test"].seed[index]), test_cases[index])
     np.testing.assert_array_equal(splits["test"].states[index], episode.states.astype(np.float32))
     np.testing.assert_array_equal(splits["test"].attention[index], episode.attention)
+    assert [p.name for p in out.parent.iterdir()] == ["hc.h5"]  # no temporary file left
 
 
-def test_same_arguments_same_data_for_any_worker_count(tmp_path):
-    args = ["--scenario", "double_merge", "--num-major", "6", "--num-minor", "3", "--num-test", "4"]
-    generate.main([*args, "--out", str(tmp_path / "a.h5")])
-    generate.main([*args, "--out", str(tmp_path / "b.h5")])
-    generate.main([*args, "--workers", "2", "--out", str(tmp_path / "c.h5")])
-    generate.main([*args, "--seed", "1", "--out", str(tmp_path / "d.h5")])
+def test_same_config_same_data_for_any_worker_count(tmp_path):
+    config = GenerateConfig.for_scenario("double_merge", num_major=6, num_minor=3, num_test=4)
+    generate_dataset(config, tmp_path / "a.h5", progress=False)
+    generate_dataset(config, tmp_path / "b.h5", progress=False)
+    generate_dataset(config, tmp_path / "c.h5", workers=2, progress=False)
+    other_seed = dataclasses.replace(config, seed=1)
+    generate_dataset(other_seed, tmp_path / "d.h5", workers=3, progress=False)
     _, a = read_dataset(tmp_path / "a.h5")
     for other in ("b.h5", "c.h5"):
         _, b = read_dataset(tmp_path / other)
@@ -133,28 +195,58 @@ def test_same_arguments_same_data_for_any_worker_count(tmp_path):
                 )
     _, d = read_dataset(tmp_path / "d.h5")
     assert not np.array_equal(a["train"].states, d["train"].states)
+    assert d["train"].seed[0] == generation.SEED_STRIDE
+
+
+def test_refuses_to_overwrite_before_any_work(tmp_path, monkeypatch):
+    out = tmp_path / "x.h5"
+    out.write_bytes(b"precious")
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("generation started although the output exists")
+
+    monkeypatch.setattr(generation, "generate_episodes", no_work)
+    config = GenerateConfig.for_scenario("halting_car", **SMALL)
+    with pytest.raises(FileExistsError, match="overwrite"):
+        generate_dataset(config, out, progress=False)
+    with pytest.raises(IsADirectoryError):
+        generate_dataset(config, tmp_path, overwrite=True, progress=False)
+    with pytest.raises(ValueError, match="workers must be at least 1"):
+        generate_dataset(config, tmp_path / "y.h5", workers=0, progress=False)
+    assert out.read_bytes() == b"precious"
+    monkeypatch.undo()
+    result = generate_dataset(config, out, overwrite=True, progress=False)
+    assert result.path == out and read_meta(out).scenario == "halting_car"
 
 
 def test_unsafe_episodes_are_replaced_deterministically(monkeypatch):
-    real_rollout = generate.rollout
     bad_seeds = {2, 5}
 
     def flaky_rollout(scenario, seed, case):
-        episode = real_rollout(scenario, seed, case)
+        episode = rollout(scenario, seed, case)
         if seed in bad_seeds:
             return dataclasses.replace(episode, collided=True)
         return episode
 
-    monkeypatch.setattr(generate, "rollout", flaky_rollout)
-    config = config_for(
-        "--scenario", "halting_car", "--num-major", "4", "--num-minor", "2", "--num-test", "1"
-    )
-    slots, episodes, rejected = generate.generate(config)
+    monkeypatch.setattr(generation, "rollout", flaky_rollout)
+    config = GenerateConfig.for_scenario("halting_car", num_major=4, num_minor=2, num_test=1)
+    slots, episodes, rejected = generation.generate_episodes(config)
     assert rejected == 2
     seeds = [slot.seed for slot in slots]
     assert not bad_seeds & set(seeds)
     assert seeds[2] == len(seeds) and seeds[5] == len(seeds) + 1  # fresh seeds, in slot order
-    assert all(generate.is_safe(e) for e in episodes)
+    assert all(generation.is_safe(e) for e in episodes)
+    assert [e.seed for e in episodes] == seeds
+
+
+def test_always_unsafe_expert_gives_up_with_a_clear_error(monkeypatch):
+    def crash(scenario, seed, case):
+        return dataclasses.replace(rollout(scenario, seed, case), off_road=True)
+
+    monkeypatch.setattr(generation, "rollout", crash)
+    config = GenerateConfig.for_scenario("halting_car", num_major=1, num_minor=0, num_test=0)
+    with pytest.raises(generation.UnsafeExpertError, match="still unsafe after 5 rounds"):
+        generation.generate_episodes(config)
 
 
 def test_is_safe_rejects_nan_and_off_road():
@@ -162,14 +254,59 @@ def test_is_safe_rejects_nan_and_off_road():
     good = SimpleNamespace(
         states=states, actions=np.zeros((3, 2, 2)), collided=False, off_road=False
     )
-    assert generate.is_safe(good)
+    assert generation.is_safe(good)
     nan_states = states.copy()
     nan_states[1, 0, 0] = np.nan
-    assert not generate.is_safe(SimpleNamespace(**{**vars(good), "states": nan_states}))
-    assert not generate.is_safe(SimpleNamespace(**{**vars(good), "off_road": True}))
-    assert not generate.is_safe(SimpleNamespace(**{**vars(good), "collided": True}))
+    assert not generation.is_safe(SimpleNamespace(**{**vars(good), "states": nan_states}))
+    assert not generation.is_safe(SimpleNamespace(**{**vars(good), "off_road": True}))
+    assert not generation.is_safe(SimpleNamespace(**{**vars(good), "collided": True}))
 
 
+# ---- interrupts inside the library -------------------------------------------------------------
+def _rollout_that_signals(monkeypatch, on_call: int) -> list[int]:
+    """Patch rollout so that call `on_call` sends SIGINT to this process before rolling out."""
+    calls: list[int] = []
+
+    def signalling_rollout(scenario, seed, case):
+        calls.append(seed)
+        if len(calls) == on_call:
+            os.kill(os.getpid(), signal.SIGINT)  # handled during the episode below
+        return rollout(scenario, seed, case)
+
+    monkeypatch.setattr(generation, "rollout", signalling_rollout)
+    return calls
+
+
+def test_ctrl_c_reaches_the_caller_after_the_episode_and_writes_nothing(tmp_path, monkeypatch):
+    calls = _rollout_that_signals(monkeypatch, on_call=3)
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    config = GenerateConfig.for_scenario("halting_car", **SMALL)
+    with pytest.raises(KeyboardInterrupt):
+        generate_dataset(config, tmp_path / "x.h5", progress=False)
+    assert len(calls) == 3  # delivered between episodes, not lost inside one
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_callers_own_handler_gets_the_signal_between_episodes(tmp_path, monkeypatch):
+    calls = _rollout_that_signals(monkeypatch, on_call=2)
+    received = []
+
+    def note(signum, frame):
+        received.append((signum, len(calls)))  # returns: the caller chose to carry on
+
+    previous = signal.signal(signal.SIGINT, note)
+    try:
+        config = GenerateConfig.for_scenario("halting_car", **SMALL)
+        result = generate_dataset(config, tmp_path / "x.h5", progress=False)
+        assert signal.getsignal(signal.SIGINT) is note
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert received == [(signal.SIGINT, 2)]
+    assert result.path.is_file() and len(calls) == len(plan(config))
+
+
+# ---- the command-line tool ---------------------------------------------------------------------
 def test_cli_smoke_summary_and_refuses_overwrite(tmp_path):
     out = tmp_path / "dm.h5"
     args = [
@@ -186,7 +323,12 @@ def test_cli_smoke_summary_and_refuses_overwrite(tmp_path):
     ]
     result = run_tool(*args)
     assert result.returncode == 0, result.stderr
-    assert f"wrote {out}" in result.stdout and "train" in result.stdout
+    assert re.fullmatch(
+        rf"wrote {re.escape(str(out))}: train 2 major \+ 2 minor; val 1 major \+ 0 minor; "
+        r"test 2 major \+ 2 minor \(22 agents, 60 steps of 0.2 s; 0 unsafe episodes replaced\) "
+        r"in \d+\.\d s\n",
+        result.stdout,
+    ), result.stdout
     assert read_meta(out).num_steps > 0
     first = out.read_bytes()
     again = run_tool(*args)
@@ -204,10 +346,13 @@ def test_cli_smoke_summary_and_refuses_overwrite(tmp_path):
         (["--scenario", "halting_car", "--minor-ratio", "1e6"], "--minor-ratio"),
         (["--scenario", "halting_car", "--num-major", "2.5"], "invalid int"),
         (["--scenario", "halting_car", "--num-test", "ten"], "invalid int"),
-        (["--scenario", "halting_car", "--num-major", "0"], "--num-major"),
+        (["--scenario", "halting_car", "--num-major", "0"], "--num-major must be at least 1"),
+        (["--scenario", "halting_car", "--num-test", "-1"], "--num-test must be at least 0"),
         (["--scenario", "halting_car", "--val-fraction", "1.0"], "--val-fraction"),
         (["--scenario", "halting_car", "--val-fraction", "-0.2"], "--val-fraction"),
         (["--scenario", "halting_car", "--major-case", "major"], "--major-case"),
+        (["--scenario", "halting_car", "--seed", "-1"], "seed must be at least 0"),
+        (["--scenario", "halting_car", "--workers", "0"], "--workers"),
         (["--scenario", "halting_car", "--minor-ratio", "0.3", "--num-minor", "3"], "either"),
     ],
 )
@@ -217,10 +362,11 @@ def test_bad_input_exits_2_with_one_line_and_no_file(tmp_path, argv, message):
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0] and "Traceback" not in result.stderr
-    assert not out.exists() and list(tmp_path.iterdir()) == []
+    assert lines[0].startswith("error: ")
+    assert list(tmp_path.iterdir()) == []
 
 
-def test_unwritable_directory_exits_2(tmp_path):
+def test_output_below_a_file_exits_2(tmp_path):
     blocker = tmp_path / "a_file"
     blocker.write_text("not a directory")
     result = run_tool(
@@ -233,34 +379,84 @@ def test_unwritable_directory_exits_2(tmp_path):
         "--out",
         str(blocker / "sub" / "x.h5"),
     )
-    assert result.returncode == 2 and "cannot create output directory" in result.stderr
-    assert "Traceback" not in result.stderr
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.strip().splitlines() == [
+        f"error: cannot write {blocker / 'sub' / 'x.h5'}: Not a directory: {blocker / 'sub'}"
+    ]
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_interrupted_run_leaves_no_file(tmp_path, sig):
-    out = tmp_path / "big.h5"
+def test_unwritable_directory_exits_2(tmp_path, monkeypatch, capsys):
+    # root ignores permission bits, so the refusal of a read-only directory is simulated where
+    # the file is created: the real write_dataset raises what h5py/os raise there.
+    def refuse(path, *args, **kwargs):
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(path))
+
+    monkeypatch.setattr(generation, "write_dataset", refuse)
+    out = tmp_path / "x.h5"
+    with pytest.raises(SystemExit) as exit_:
+        generate_tool.main(
+            ["--scenario", "halting_car", "--num-major", "1", "--num-test", "0"]
+            + ["--out", str(out)]
+        )
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"error: cannot write {out}: Permission denied"
+    assert list(tmp_path.iterdir()) == []
+
+
+# ---- interrupting the tool ---------------------------------------------------------------------
+PROGRESS = re.compile(rb"\| *[1-9]\d*/\d+ \[")  # tqdm: at least one trajectory done
+
+
+def _start_and_wait_for_progress(out: Path, workers: int, timeout: float = 180):
+    """Start a long generation; return (process, stderr so far) once a trajectory is done."""
     process = subprocess.Popen(
-        [
-            sys.executable,
-            str(TOOL),
-            "--scenario",
-            "double_merge",
-            "--num-major",
-            "5000",
-            "--out",
-            str(out),
-        ],
+        [sys.executable, str(TOOL), "--scenario", "double_merge", "--num-major", "5000"]
+        + ["--workers", str(workers), "--out", str(out)],
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
-        text=True,
+        start_new_session=True,  # its own process group, like a job in a terminal
     )
-    time.sleep(3.0)  # well into generating
-    process.send_signal(sig)
-    _, stderr = process.communicate(timeout=60)
-    assert process.returncode != 0
-    assert "Traceback" not in stderr
-    assert not out.exists()
-    assert [p.name for p in tmp_path.iterdir()] == []
-    assert os.path.isdir(tmp_path)
+    seen = b""
+    deadline = time.monotonic() + timeout
+    while not PROGRESS.search(seen):
+        ready, _, _ = select.select([process.stderr], [], [], max(0.0, deadline - time.monotonic()))
+        chunk = os.read(process.stderr.fileno(), 65536) if ready else b""
+        if not chunk:  # timed out, or the tool ended
+            os.killpg(process.pid, signal.SIGKILL)
+            process.communicate()
+            pytest.fail(f"no progress within {timeout} s; stderr: {seen[-1000:]!r}")
+        seen += chunk
+    return process, seen
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize(
+    "sig, to_group",
+    [(signal.SIGINT, True), (signal.SIGTERM, False)],
+    ids=["ctrl-c-to-the-group", "sigterm-to-the-tool"],
+)
+def test_interrupted_run_leaves_no_file(tmp_path, sig, to_group, workers):
+    out = tmp_path / "big.h5"
+    process, seen = _start_and_wait_for_progress(out, workers)
+    try:
+        if to_group:  # what a terminal's Ctrl-C does: the tool and its workers get SIGINT
+            os.killpg(process.pid, sig)
+        else:
+            process.send_signal(sig)
+        stdout, rest = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.communicate()
+    stderr = (seen + rest).decode()
+    assert process.returncode == 130, stderr[-2000:]
+    assert "Traceback" not in stderr and "cffi" not in stderr and "Exception" not in stderr
+    lines = [line for line in re.split(r"[\r\n]", stderr) if line.strip()]
+    assert lines[-1] == "error: interrupted; nothing was written"
+    assert sum("error" in line for line in lines) == 1
+    assert stdout == b""
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(ProcessLookupError):  # no worker outlived the tool
+        os.killpg(process.pid, 0)

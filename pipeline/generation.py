@@ -1,0 +1,472 @@
+"""Dataset generation as one library call: a validated config in, an HDF5 dataset file out.
+
+    config = GenerateConfig.for_scenario("halting_car", minor_ratio=0.3)
+    result = generate_dataset(config, default_output(config), workers=2)
+    print(result.summary())
+
+The training pool holds `num_major` trajectories of the major case and `num_minor` of the minor
+case; `val_fraction` of each case is split off for validation. The test split holds `num_test`
+trajectories of each case. Trajectory k gets the seed SEED_STRIDE x seed + k, so every trajectory
+is reproducible on its own and the output does not depend on the number of workers. Every
+trajectory is checked (finite, no collision, no off-road car) before the file is written,
+atomically.
+
+Interrupts: while episodes are rolled out, SIGINT and SIGTERM are only recorded and handed to the
+caller's own handler between episodes (see `_DeferredSignals`), so Ctrl-C ends a run cleanly with
+KeyboardInterrupt (the default SIGINT handler) and no file; worker processes ignore Ctrl-C and
+are stopped by this process.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import errno
+import gc
+import json
+import multiprocessing
+import multiprocessing.pool
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+
+import numpy as np
+from tqdm import tqdm
+
+from predictor.format import DatasetMeta, TrajectorySet, write_dataset
+from scenarios import SCENARIOS, Scenario
+from scenarios.rollout import Episode, rollout
+
+SEED_STRIDE = 1_000_000  # trajectory seeds: SEED_STRIDE * seed + k
+DEFAULT_MINOR_RATIO = 0.3  # the paper uses 0.3 and 0.8
+MAX_MINOR_RATIO = 10.0  # larger ratios are almost certainly a typo
+MAX_ATTEMPTS = 5  # replacement rounds for rejected (unsafe) episodes
+SPLIT_ORDER = ("train", "val", "test")
+_POLL_SECONDS = 0.1  # how often the parent looks for a recorded signal while workers run
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    """Everything that determines the output file (stored in it as JSON); validated on creation.
+
+    Build one with `GenerateConfig.for_scenario(...)`, which picks the scenario's default major
+    case, the other case as minor, and the minor count from a ratio. Raises ValueError, with one
+    line naming the field, on a value out of range.
+    """
+
+    scenario: str  # a name in scenarios.SCENARIOS
+    major_case: str  # the frequent case, one of the scenario's case_names
+    minor_case: str  # the rare case: another of the scenario's case_names
+    num_major: int = 50  # training + validation trajectories of the major case, >= 1
+    num_minor: int = 15  # training + validation trajectories of the minor case, >= 0
+    num_test: int = 50  # test trajectories of each case, >= 0
+    val_fraction: float = 0.2  # share of each case's training pool used for validation, [0, 1)
+    seed: int = 0  # master seed, >= 0
+
+    def __post_init__(self) -> None:
+        _check_scenario(self.scenario)
+        cases = SCENARIOS[self.scenario].case_names
+        for field, value in (("major_case", self.major_case), ("minor_case", self.minor_case)):
+            if value not in cases:
+                raise ValueError(
+                    f"{field} must be one of {', '.join(cases)} for {self.scenario}, got {value!r}"
+                )
+        if self.minor_case == self.major_case:
+            raise ValueError(
+                f"minor_case must differ from major_case, both are {self.major_case!r}"
+            )
+        for field, value, least in (
+            ("num_major", self.num_major, 1),
+            ("num_minor", self.num_minor, 0),
+            ("num_test", self.num_test, 0),
+        ):
+            _check_int(field, value, least)
+        if not _is_number(self.val_fraction) or not 0.0 <= self.val_fraction < 1.0:
+            raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
+        _check_int("seed", self.seed, 0)
+
+    @classmethod
+    def for_scenario(
+        cls,
+        scenario: str,
+        *,
+        major_case: str | None = None,
+        num_major: int = 50,
+        minor_ratio: float | None = None,
+        num_minor: int | None = None,
+        num_test: int = 50,
+        val_fraction: float = 0.2,
+        seed: int = 0,
+    ) -> GenerateConfig:
+        """The config with the scenario's defaults filled in (what tools/generate.py builds).
+
+        `major_case` defaults to the scenario's `default_major_case`; the minor case is the other
+        case. The minor count is `num_minor` if given, else round(minor_ratio x num_major) with
+        `minor_ratio` in [0, MAX_MINOR_RATIO] (default DEFAULT_MINOR_RATIO); give one, not both.
+        """
+        _check_scenario(scenario)
+        cases = SCENARIOS[scenario].case_names
+        major = SCENARIOS[scenario].default_major_case if major_case is None else major_case
+        if minor_ratio is not None and num_minor is not None:
+            raise ValueError("give either minor_ratio or num_minor, not both")
+        if num_minor is None:
+            ratio = DEFAULT_MINOR_RATIO if minor_ratio is None else minor_ratio
+            if not _is_number(ratio) or not 0.0 <= ratio <= MAX_MINOR_RATIO:
+                raise ValueError(f"minor_ratio must be in [0, {MAX_MINOR_RATIO:g}], got {ratio}")
+            _check_int("num_major", num_major, 1)
+            num_minor = round(ratio * num_major)
+        minor = next(case for case in cases if case != major)  # a bad major is caught below
+        return cls(scenario, major, minor, num_major, num_minor, num_test, val_fraction, seed)
+
+
+def _check_scenario(name: str) -> None:
+    if name not in SCENARIOS:
+        raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(sorted(SCENARIOS))}")
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_int(field: str, value: object, least: int) -> None:
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise ValueError(f"{field} must be an integer, got {value!r}")
+    if value < least:
+        raise ValueError(f"{field} must be at least {least}, got {value}")
+
+
+@dataclass(frozen=True)
+class Slot:
+    """One trajectory to generate: where it goes and with which seed."""
+
+    split: str
+    case: str
+    seed: int
+
+
+@dataclass(frozen=True)
+class GenerationResult:
+    """What `generate_dataset` wrote."""
+
+    path: Path  # the dataset file
+    meta: DatasetMeta  # as stored in the file
+    counts: dict[str, dict[str, int]]  # split -> case -> trajectories
+    num_agents: int  # cars per trajectory
+    rejected: int  # unsafe episodes replaced with fresh seeds
+    seconds: float  # wall time, writing included
+
+    def describe(self) -> str:
+        """Per-split counts, e.g. "train 40 major + 12 minor; val 10 major + 3 minor; ..."."""
+        return "; ".join(
+            f"{split} " + " + ".join(f"{n} {case}" for case, n in cases.items())
+            for split, cases in self.counts.items()
+        )
+
+    def summary(self) -> str:
+        """The one-line report tools/generate.py prints."""
+        return (
+            f"wrote {self.path}: {self.describe()} ({self.num_agents} agents, "
+            f"{self.meta.num_steps} steps of {self.meta.dt:g} s; {self.rejected} unsafe episodes "
+            f"replaced) in {self.seconds:.1f} s"
+        )
+
+
+class UnsafeExpertError(RuntimeError):
+    """Some planned trajectories stayed unsafe after MAX_ATTEMPTS rounds of fresh seeds."""
+
+
+def default_output(config: GenerateConfig) -> Path:
+    """data/<scenario>_<major>-major_<num_major>+<num_minor>_seed<seed>.h5 (relative path)."""
+    name = (
+        f"{config.scenario}_{config.major_case}-major_{config.num_major}+{config.num_minor}"
+        f"_seed{config.seed}.h5"
+    )
+    return Path("data") / name
+
+
+def plan(config: GenerateConfig) -> list[Slot]:
+    """All trajectories in file order: train, val, test; major before minor within a split."""
+    counts = []
+    for case, pool in (
+        (config.major_case, config.num_major),
+        (config.minor_case, config.num_minor),
+    ):
+        num_val = round(config.val_fraction * pool)
+        counts.append(("train", case, pool - num_val))
+        counts.append(("val", case, num_val))
+    for case in (config.major_case, config.minor_case):
+        counts.append(("test", case, config.num_test))
+    counts.sort(key=lambda item: SPLIT_ORDER.index(item[0]))  # stable: major before minor
+    cases = [(split, case) for split, case, count in counts for _ in range(count)]
+    base = SEED_STRIDE * config.seed
+    return [Slot(split, case, base + k) for k, (split, case) in enumerate(cases)]
+
+
+def is_safe(episode: Episode) -> bool:
+    """The stored trajectory is finite and its expert never collided or left the road."""
+    finite = np.isfinite(episode.states).all() and np.isfinite(episode.actions).all()
+    return bool(finite and not episode.collided and not episode.off_road)
+
+
+# ---- interrupts -------------------------------------------------------------------------------
+class _DeferredSignals:
+    """Context manager: SIGINT and SIGTERM are recorded and delivered only at `check()`.
+
+    Python runs a signal handler wherever the main thread happens to be, including inside a
+    pymunk (cffi) callback: a shape query of the collision check, or the destructor of an
+    episode's pymunk space, which the cyclic garbage collector runs at any moment. cffi prints
+    a KeyboardInterrupt raised there ("From cffi callback ...") and swallows it, and generation
+    goes on (or Chipmunk aborts the process, its space left locked). Here the handler
+    only records the signal, and `check()`, called between episodes, passes it to the handler
+    that was installed before (normally raising KeyboardInterrupt) from ordinary Python code.
+    Only signals with a Python handler are deferred (a default SIGTERM still ends the process at
+    once); outside the main thread nothing is deferred. On leaving, the previous handlers are
+    restored and a signal still pending is delivered.
+    """
+
+    def __init__(self) -> None:
+        self._previous: dict[int, Callable] = {}
+        self._pending: list[tuple[int, FrameType | None]] = []
+
+    def __enter__(self) -> _DeferredSignals:
+        if threading.current_thread() is threading.main_thread():
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                handler = signal.getsignal(signum)
+                if callable(handler):
+                    self._previous[signum] = handler
+                    signal.signal(signum, self._record)
+        return self
+
+    def _record(self, signum: int, frame: FrameType | None) -> None:
+        self._pending.append((signum, frame))
+
+    def check(self) -> None:
+        """Deliver recorded signals to their previous handlers (which may raise)."""
+        while self._pending:
+            signum, frame = self._pending.pop(0)
+            self._previous[signum](signum, frame)
+
+    def __exit__(self, exc_type, exc, traceback) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        if exc_type is None:
+            self.check()
+        self._pending.clear()
+
+
+# ---- running episodes (in this process or in workers) -----------------------------------------
+_SCENARIO: Scenario | None = None  # the scenario object episodes are rolled out with
+
+
+def _load_scenario(scenario_name: str) -> None:
+    global _SCENARIO
+    _SCENARIO = SCENARIOS[scenario_name]()
+
+
+def _init_worker(scenario_name: str) -> None:
+    """Workers leave Ctrl-C to the parent (which stops the pool) and die quietly on SIGTERM."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _load_scenario(scenario_name)
+
+
+def _run_slot(slot: Slot) -> Episode:
+    return rollout(_SCENARIO, slot.seed, slot.case)
+
+
+def _next_result(results: multiprocessing.pool.IMapIterator, signals: _DeferredSignals) -> Episode:
+    """The pool's next episode; signals recorded meanwhile are delivered while waiting."""
+    while True:
+        signals.check()
+        try:
+            return results.next(timeout=_POLL_SECONDS)
+        except multiprocessing.TimeoutError:
+            pass
+
+
+def _run_slots(
+    slots: list[Slot], scenario_name: str, workers: int, progress: tqdm, signals: _DeferredSignals
+) -> list[Episode]:
+    """Roll out every slot, in order; the result does not depend on `workers`.
+
+    With workers > 1 the pool is terminated on any exception (KeyboardInterrupt included).
+    """
+    episodes = []
+    if workers == 1:
+        _load_scenario(scenario_name)
+        for slot in slots:
+            episodes.append(_run_slot(slot))
+            progress.update()
+            signals.check()
+        return episodes
+    context = multiprocessing.get_context("spawn" if sys.platform == "darwin" else "fork")
+    with context.Pool(workers, initializer=_init_worker, initargs=(scenario_name,)) as pool:
+        results = pool.imap(_run_slot, slots)  # chunksize 1: an iterator with next(timeout)
+        for _ in slots:
+            episodes.append(_next_result(results, signals))
+            progress.update()
+    return episodes
+
+
+def generate_episodes(
+    config: GenerateConfig, *, workers: int = 1, progress: bool = False
+) -> tuple[list[Slot], list[Episode], int]:
+    """Roll out every planned trajectory, replacing unsafe ones with fresh seeds.
+
+    Returns the final slots, their episodes and how many episodes were rejected. Replacement
+    seeds continue after the planned ones, in slot order, so the result is deterministic.
+    Raises UnsafeExpertError if some stay unsafe, KeyboardInterrupt on Ctrl-C (see the module).
+    """
+    if workers < 1:
+        raise ValueError(f"workers must be at least 1, got {workers}")
+    slots = plan(config)
+    next_seed = SEED_STRIDE * config.seed + len(slots)
+    episodes: list[Episode | None] = [None] * len(slots)
+    pending = list(range(len(slots)))
+    rejected = 0
+    bar = tqdm(
+        total=len(slots),
+        desc=f"generate {config.scenario}",
+        unit="traj",
+        file=sys.stderr,
+        dynamic_ncols=True,
+        disable=not progress,
+    )
+    with _DeferredSignals() as signals, bar:
+        for _ in range(MAX_ATTEMPTS):
+            results = _run_slots(
+                [slots[i] for i in pending], config.scenario, workers, bar, signals
+            )
+            retry = []
+            for index, episode in zip(pending, results):
+                if is_safe(episode):
+                    episodes[index] = episode
+                else:
+                    retry.append(index)
+            rejected += len(retry)
+            for index in retry:
+                slots[index] = dataclasses.replace(slots[index], seed=next_seed)
+                next_seed += 1
+            bar.total += len(retry)
+            pending = retry
+            if not pending:
+                # pymunk objects are freed by the cyclic garbage collector, through cffi
+                # callbacks: free them now, while signals are deferred, not during writing
+                gc.collect()
+                return slots, episodes, rejected
+    raise UnsafeExpertError(
+        f"{len(pending)} trajectories were still unsafe after {MAX_ATTEMPTS} "
+        "rounds of fresh seeds; the expert policy needs fixing"
+    )
+
+
+# ---- writing --------------------------------------------------------------------------------
+def _to_trajectory_set(episodes: list[Episode], case_names: tuple[str, ...]) -> TrajectorySet:
+    """Stack episodes (all with the same T and N) into one split."""
+
+    def stack(name: str, dtype) -> np.ndarray:
+        return np.stack([getattr(e, name) for e in episodes]).astype(dtype)
+
+    return TrajectorySet(
+        states=stack("states", np.float32),
+        actions=stack("actions", np.float32),
+        valid=stack("valid", bool),
+        attention=stack("attention", np.int16),
+        interaction=stack("interaction", bool),
+        case=np.array([case_names.index(e.case) for e in episodes], dtype=np.int8),
+        seed=np.array([e.seed for e in episodes], dtype=np.int64),
+        roles=stack("roles", np.int8),
+    )
+
+
+def _build_splits(
+    slots: list[Slot], episodes: list[Episode], scenario: Scenario
+) -> dict[str, TrajectorySet]:
+    splits = {}
+    case_names = tuple(scenario.case_names)
+    for split in SPLIT_ORDER:
+        chosen = [e for s, e in zip(slots, episodes) if s.split == split]
+        splits[split] = (
+            _to_trajectory_set(chosen, case_names)
+            if chosen
+            else TrajectorySet.empty(scenario.config.num_steps, episodes[0].states.shape[1])
+        )
+    return splits
+
+
+def _dataset_meta(config: GenerateConfig, scenario: Scenario, rejected: int) -> DatasetMeta:
+    scenario_config = scenario.config
+    return DatasetMeta(
+        scenario=config.scenario,
+        dt=float(scenario_config.recorded_dt),
+        num_observed=int(scenario_config.num_observed),
+        num_predicted=int(scenario_config.num_predicted),
+        case_names=tuple(scenario.case_names),
+        major_case=config.major_case,
+        role_names=tuple(scenario.role_names),
+        config={
+            "generator": dataclasses.asdict(config),
+            "scenario": json.loads(json.dumps(dataclasses.asdict(scenario_config), default=str)),
+            "rejected_unsafe_episodes": rejected,
+        },
+    )
+
+
+def _check_output(out: Path, overwrite: bool) -> None:
+    """Refuse an existing file (unless overwrite) or a directory; create missing directories."""
+    if out.is_dir():
+        raise IsADirectoryError(f"output {out} is a directory")
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"output {out} already exists; pass overwrite=True to replace it")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:  # a file stands where the directory should be
+        raise NotADirectoryError(
+            errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(out.parent)
+        ) from None
+
+
+def generate_dataset(
+    config: GenerateConfig,
+    out: str | Path,
+    *,
+    workers: int = 1,
+    overwrite: bool = False,
+    progress: bool = True,
+) -> GenerationResult:
+    """Roll out `config`'s trajectories, check them, and write the dataset to `out` atomically.
+
+    The output is the same for any `workers` (processes). Missing parent directories are
+    created. A progress bar goes to stderr unless `progress` is False.
+    Raises FileExistsError if `out` exists and not `overwrite` (checked before any work, and
+    again when writing), IsADirectoryError if it is a directory, another OSError if it cannot be
+    written, ValueError for workers < 1, UnsafeExpertError (see `generate_episodes`), and
+    KeyboardInterrupt on Ctrl-C (SIGTERM too where a handler raises it), with nothing written.
+    """
+    out = Path(out)
+    if workers < 1:
+        raise ValueError(f"workers must be at least 1, got {workers}")
+    _check_output(out, overwrite)
+    start = time.perf_counter()
+    slots, episodes, rejected = generate_episodes(config, workers=workers, progress=progress)
+    scenario = SCENARIOS[config.scenario]()
+    splits = _build_splits(slots, episodes, scenario)
+    meta = _dataset_meta(config, scenario, rejected)
+    write_dataset(out, meta, splits, overwrite=overwrite)
+    counts = {
+        split: {name: int((data.case == i).sum()) for i, name in enumerate(meta.case_names)}
+        for split, data in splits.items()
+    }
+    return GenerationResult(
+        path=out,
+        meta=meta,
+        counts=counts,
+        num_agents=splits["train"].num_agents,
+        rejected=rejected,
+        seconds=time.perf_counter() - start,
+    )
