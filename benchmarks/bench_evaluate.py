@@ -12,25 +12,19 @@ The last line of stdout is one JSON object {"benchmark": "evaluate", ...}.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-
-import generate  # noqa: E402  (tools/generate.py; also puts the repository root on sys.path)
-
-from predictor.config import make_configs  # noqa: E402
-from predictor.data import TrajectoryDataset  # noqa: E402
-from predictor.evaluation import predict_const_vel, predict_model, score  # noqa: E402
-from predictor.model import SmoothAttentionPredictor  # noqa: E402
+from pipeline.generation import GenerateConfig, generate_dataset
+from predictor.config import make_configs
+from predictor.data import TrajectoryDataset
+from predictor.evaluation import predict_const_vel, predict_model, score
+from predictor.model import SmoothAttentionPredictor
 
 
 def median_seconds(function, repeats: int) -> float:
@@ -50,9 +44,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "dm.h5"
-        argv = ["--scenario", "double_merge", "--out", str(path)]
-        with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
-            generate.main(argv)
+        generate_dataset(GenerateConfig.for_scenario("double_merge"), path, progress=False)
         load_s = median_seconds(lambda: TrajectoryDataset(path, "test").all(), args.repeats)
         dataset = TrajectoryDataset(path, "test")
     meta, batch = dataset.meta, dataset.all()

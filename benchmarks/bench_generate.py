@@ -10,30 +10,21 @@ Prints a line per configuration and, last, one JSON line {"benchmark": "generate
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-
-import generate  # noqa: E402  (tools/generate.py; also puts the repository root on sys.path)
-
-from scenarios import SCENARIOS  # noqa: E402
+from pipeline.generation import GenerateConfig, generate_dataset, plan
+from scenarios import SCENARIOS
 
 
-def time_generation(scenario: str, workers: int) -> float:
-    """Seconds to generate and write the default set of `scenario`."""
-    with tempfile.TemporaryDirectory() as folder, contextlib.redirect_stderr(io.StringIO()):
-        out = Path(folder) / "set.h5"
-        argv = ["--scenario", scenario, "--workers", str(workers), "--out", str(out)]
+def time_generation(config: GenerateConfig, workers: int) -> float:
+    """Seconds to generate and write the dataset of `config`."""
+    with tempfile.TemporaryDirectory() as folder:
         start = time.perf_counter()
-        with contextlib.redirect_stdout(io.StringIO()):
-            generate.main(argv)
+        generate_dataset(config, Path(folder) / "set.h5", workers=workers, progress=False)
         return time.perf_counter() - start
 
 
@@ -44,12 +35,13 @@ def main() -> None:
     record: dict = {"benchmark": "generate"}
     for name in sorted(SCENARIOS):
         config = SCENARIOS[name]().config
-        trajectories = len(
-            generate.plan(generate.config_from_args(generate.parse_args(["--scenario", name])))
-        )
+        generate_config = GenerateConfig.for_scenario(name)
+        trajectories = len(plan(generate_config))
         sim_steps = config.num_steps * config.record_every
         for workers in (1, 2):
-            seconds = statistics.median(time_generation(name, workers) for _ in range(args.repeats))
+            seconds = statistics.median(
+                time_generation(generate_config, workers) for _ in range(args.repeats)
+            )
             rate = trajectories / seconds
             agent_steps = rate * sim_steps * config.num_cars
             print(
