@@ -48,6 +48,7 @@ MAX_MINOR_RATIO = 10.0  # larger ratios are almost certainly a typo
 MAX_ATTEMPTS = 5  # replacement rounds for rejected (unsafe) episodes
 SPLIT_ORDER = ("train", "val", "test")
 _POLL_SECONDS = 0.1  # how often the parent looks for a recorded signal while workers run
+_MAX_CHUNK = 32  # most episodes per pool task (fewer tasks, but a progress bar that moves)
 
 
 @dataclass(frozen=True)
@@ -279,8 +280,14 @@ def _run_slot(slot: Slot) -> Episode:
     return rollout(_SCENARIO, slot.seed, slot.case)
 
 
-def _next_result(results: multiprocessing.pool.IMapIterator, signals: _DeferredSignals) -> Episode:
-    """The pool's next episode; signals recorded meanwhile are delivered while waiting."""
+def _run_chunk(slots: list[Slot]) -> list[Episode]:
+    return [_run_slot(slot) for slot in slots]
+
+
+def _next_result(
+    results: multiprocessing.pool.IMapIterator, signals: _DeferredSignals
+) -> list[Episode]:
+    """The pool's next chunk of episodes; signals recorded meanwhile are delivered while waiting."""
     while True:
         signals.check()
         try:
@@ -294,7 +301,8 @@ def _run_slots(
 ) -> list[Episode]:
     """Roll out every slot, in order; the result does not depend on `workers`.
 
-    With workers > 1 the pool is terminated on any exception (KeyboardInterrupt included).
+    With workers > 1 the slots go to a pool in chunks, terminated on any exception
+    (KeyboardInterrupt included).
     """
     episodes = []
     if workers == 1:
@@ -304,12 +312,15 @@ def _run_slots(
             progress.update()
             signals.check()
         return episodes
+    size = max(1, min(_MAX_CHUNK, len(slots) // (8 * workers)))
+    chunks = [slots[i : i + size] for i in range(0, len(slots), size)]
     context = multiprocessing.get_context("spawn" if sys.platform == "darwin" else "fork")
     with context.Pool(workers, initializer=_init_worker, initargs=(scenario_name,)) as pool:
-        results = pool.imap(_run_slot, slots)  # chunksize 1: an iterator with next(timeout)
-        for _ in slots:
-            episodes.append(_next_result(results, signals))
-            progress.update()
+        results = pool.imap(_run_chunk, chunks)  # chunksize 1: an iterator with next(timeout)
+        for _ in chunks:
+            chunk = _next_result(results, signals)
+            episodes.extend(chunk)
+            progress.update(len(chunk))
     return episodes
 
 
