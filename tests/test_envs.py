@@ -5,6 +5,7 @@ terminate early), equality with `rollout`, pickling, random actions, input error
 from __future__ import annotations
 
 import pickle
+import re
 import types
 import warnings
 from collections.abc import Iterator
@@ -448,3 +449,37 @@ def test_spaces_and_rendering(module) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         env.close()
+
+
+TABLE_ROW = re.compile(
+    r"^\s*\| (\d+)( \+ 5k)?\s+\|[^|]+\|\s*(-?pi|-?\d+)\s*\|\s*(-?pi|-?\d+)\s*\|$"
+)
+
+
+def documented_bound(text: str) -> float:
+    """A Min or Max cell of the manual's observation table as a number ("-pi" included)."""
+    return float(text.replace("pi", str(np.pi)))
+
+
+@pytest.mark.parametrize("module", MODULES)
+def test_the_manual_in_the_class_docstring_matches_the_spaces(module) -> None:
+    env = module.parallel_env()
+    manual = type(env).__doc__
+    space, action_space = env.observation_space("car_0"), env.action_space("car_0")
+    low, high = action_space.low.tolist(), action_space.high.tolist()
+    assert f"`Box({low}, {high}, (2,), float32)` per agent" in manual
+    assert f"`Box(float32, ({space.shape[0]},))` per agent" in manual
+    others = env.scenario.num_cars - 1
+    assert f"with k = 0 ... {others - 1} indexing the other {others} cars" in manual
+    held = re.search(r"one env step = (\d) simulation\s+steps of ([\d.]+) s \(([\d.]+) s\)", manual)
+    assert int(held[1]) == env.config.record_every
+    assert float(held[1]) * float(held[2]) == pytest.approx(float(held[3]))
+    assert float(held[3]) == pytest.approx(env.config.recorded_dt)
+    rows = [TABLE_ROW.match(line) for line in manual.splitlines()]
+    rows = [row for row in rows if row]
+    assert len(rows) == 9
+    for row in rows:
+        first = int(row[1])
+        for index in [first, first + 5 * (others - 1)] if row[2] else [first]:
+            assert space.low[index] == pytest.approx(documented_bound(row[3]), abs=1e-6)
+            assert space.high[index] == pytest.approx(documented_bound(row[4]), abs=1e-6)
