@@ -173,8 +173,7 @@ class ScenarioParallelEnv(ParallelEnv):
         case = self.scenario.check_case(options.pop("case", self.default_case))
         if options:
             warnings.warn(
-                f"reset ignores unknown options {sorted(options, key=str)}; the only option "
-                f"is 'case'",
+                f"reset ignores unknown options {sorted(options, key=str)}; the only one is 'case'",
                 stacklevel=2,
             )
         self.episode_seed = self._next_episode_seed(seed)
@@ -198,7 +197,7 @@ class ScenarioParallelEnv(ParallelEnv):
                 f"got {type(actions).__name__}"
             )
         unknown = sorted(set(actions) - set(self.possible_agents), key=str)
-        gone = sorted(set(actions) & set(self.possible_agents) - set(self.agents))
+        gone = sorted(set(actions) & (set(self.possible_agents) - set(self.agents)))
         missing = sorted(set(self.agents) - set(actions))
         if unknown or gone or missing:
             problems = {"missing": missing, "unknown agents": unknown, "no longer live": gone}
@@ -212,7 +211,11 @@ class ScenarioParallelEnv(ParallelEnv):
         return controls
 
     def step(self, actions: Mapping[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
-        """Apply one action per live agent, held for `record_every` simulation steps."""
+        """Apply one action per live agent, held for `record_every` simulation steps.
+
+        Raises (before anything moves) a ValueError that names the agent for an action that is
+        not 2 finite numbers, or the agents for a dict that does not cover exactly `agents`.
+        """
         if self.world is None:
             raise RuntimeError("call reset() before step()")
         controls = self._controls(actions)
