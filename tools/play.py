@@ -72,11 +72,11 @@ def check_args(args: argparse.Namespace) -> tuple[str, Path | None]:
     video = None
     if args.record is not None:
         video = check_output(args.record, args.overwrite)
-        check_writable(video)
         if video.suffix.lower() not in VIDEO_SUFFIXES:
             fail(f"--record must end in {' or '.join(VIDEO_SUFFIXES)}, got {video.name}")
         if video.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
             fail("writing .mp4 needs imageio-ffmpeg (pip install imageio-ffmpeg); use .gif")
+        check_writable(video)
     return case, video
 
 
