@@ -8,7 +8,9 @@ because both step the world through `scenarios.rollout.advance`.
 
 from __future__ import annotations
 
+import reprlib
 import warnings
+from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
@@ -23,6 +25,9 @@ EGO_FEATURES = 4  # x, y, heading, speed
 OTHER_FEATURES = 5  # presence, dx, dy, d_heading, d_speed
 FRAME_WIDTH_PX, FRAME_HEIGHT_PX = 800, 200
 RENDER_MODES = ("human", "rgb_array")
+# PettingZoo's API checkers (api_test, parallel_api_test) call reset(seed=0, options={"options": 1})
+# only to see that reset takes these keywords: reset accepts and ignores this one key silently.
+CHECKER_PROBE_OPTION = "options"
 
 
 def observation_bounds(config: ScenarioConfig, num_cars: int) -> tuple[np.ndarray, np.ndarray]:
@@ -36,6 +41,24 @@ def observation_bounds(config: ScenarioConfig, num_cars: int) -> tuple[np.ndarra
     low = np.array(ego_low + other_low * (num_cars - 1), dtype=np.float32)
     high = np.array(ego_high + other_high * (num_cars - 1), dtype=np.float32)
     return low, high
+
+
+def _action_array(agent: str, action: Any) -> np.ndarray:
+    """`action` as a float (2,) array; a ValueError naming `agent` and the problem unless it is
+    two finite real numbers (strings, booleans and complex numbers are refused, not converted)."""
+    array = np.asarray(action)
+    if array.dtype.kind not in "iuf":
+        problem = f"not real numbers (dtype {array.dtype})"
+    elif array.shape != (2,):
+        problem = f"shape {array.shape}"
+    elif not np.isfinite(array).all():
+        problem = "non-finite values"
+    else:
+        return array.astype(float)
+    raise ValueError(
+        f"action of {agent} must be 2 finite numbers [steering rad, acceleration m/s^2], "
+        f"shape (2,); got {reprlib.repr(action)}: {problem}"
+    )
 
 
 def env_metadata(name: str, scenario_class: type[Scenario]) -> dict[str, Any]:
@@ -136,13 +159,23 @@ class ScenarioParallelEnv(ParallelEnv):
         return int(self._seed_rng.integers(0, 2**63 - 1))
 
     def reset(
-        self, seed: int | None = None, options: dict[str, Any] | None = None
+        self, seed: int | None = None, options: Mapping[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
-        """Start an episode; `options={"case": ...}` picks the case (default: the env's case)."""
+        """Start an episode; `options={"case": ...}` picks the case (default: the env's case).
+
+        Any other option key is ignored with a UserWarning (a typo such as "cse" would otherwise
+        silently play the default case), except PettingZoo's checker probe `{"options": 1}`.
+        """
+        if options is not None and not isinstance(options, Mapping):
+            raise TypeError(f"options must be a dict such as {{'case': ...}}, got {options!r}")
         options = dict(options or {})
+        options.pop(CHECKER_PROBE_OPTION, None)
         case = self.scenario.check_case(options.pop("case", self.default_case))
         if options:
-            warnings.warn(f"reset ignores unknown options {sorted(options)}", stacklevel=2)
+            warnings.warn(
+                f"reset ignores unknown options {sorted(options, key=str)}; the only one is 'case'",
+                stacklevel=2,
+            )
         self.episode_seed = self._next_episode_seed(seed)
         self.case = case
         self.world = self.scenario.reset(np.random.default_rng(self.episode_seed), case)
@@ -156,25 +189,33 @@ class ScenarioParallelEnv(ParallelEnv):
             self.render()
         return observations, infos
 
-    def _controls(self, actions: dict[str, Any]) -> np.ndarray:
-        """(N, 2) controls from the action dict; every live agent needs an action."""
-        unknown = sorted(set(actions) - set(self.agents))
+    def _controls(self, actions: Mapping[str, Any]) -> np.ndarray:
+        """(N, 2) controls from the action dict; every live agent needs a valid action."""
+        if not isinstance(actions, Mapping):
+            raise TypeError(
+                f"actions must be a dict {{agent: action}} for the live agents, "
+                f"got {type(actions).__name__}"
+            )
+        unknown = sorted(set(actions) - set(self.possible_agents), key=str)
+        gone = sorted(set(actions) & (set(self.possible_agents) - set(self.agents)))
         missing = sorted(set(self.agents) - set(actions))
-        if unknown or missing:
+        if unknown or gone or missing:
+            problems = {"missing": missing, "unknown agents": unknown, "no longer live": gone}
             raise ValueError(
-                f"actions must be given for exactly the live agents; "
-                f"missing {missing}, not live {unknown}"
+                "actions must be given for exactly the live agents (env.agents); "
+                + "; ".join(f"{what} {names}" for what, names in problems.items() if names)
             )
         controls = np.zeros((self.scenario.num_cars, 2))
         for agent, action in actions.items():
-            action = np.asarray(action, dtype=float)
-            if action.shape != (2,):
-                raise ValueError(f"action of {agent} must be [steering, acceleration]")
-            controls[self.agent_index[agent]] = action
+            controls[self.agent_index[agent]] = _action_array(agent, action)
         return controls
 
-    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
-        """Apply one action per live agent, held for `record_every` simulation steps."""
+    def step(self, actions: Mapping[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+        """Apply one action per live agent, held for `record_every` simulation steps.
+
+        Raises (before anything moves) a ValueError that names the agent for an action that is
+        not 2 finite numbers, or the agents for a dict that does not cover exactly `agents`.
+        """
         if self.world is None:
             raise RuntimeError("call reset() before step()")
         controls = self._controls(actions)

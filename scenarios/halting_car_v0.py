@@ -1,4 +1,9 @@
-"""Halting Car as a PettingZoo environment: `parallel_env()`, `env()` (AEC) and `raw_env`."""
+"""Halting Car as a PettingZoo environment: `parallel_env()`, `env()` (AEC) and `raw_env`.
+
+The user manual (observation and action spaces with shapes, units and bounds, rewards, episode
+end, infos, arguments) is the docstring of `HaltingCarEnv` below:
+`python -m pydoc scenarios.halting_car_v0.HaltingCarEnv`.
+"""
 
 from __future__ import annotations
 
@@ -28,6 +33,9 @@ class HaltingCarEnv(ScenarioParallelEnv):
     `Box([-0.5, -8.0], [0.5, 4.0], (2,), float32)` per agent: steering angle [rad] (positive
     turns left) and acceleration [m/s^2]. An action is held for one env step = 3 simulation
     steps of 0.1 s (0.3 s). Speeds stay in [0, 40] m/s.
+    Values outside the bounds are clipped. `step` takes a dict with an action for exactly the
+    live agents (`env.agents`); an action that is not 2 finite real numbers (a string, NaN,
+    another shape) raises a ValueError naming the agent, before anything moves.
     `env.unwrapped.expert_actions()` gives the expert's action for every live agent, so you can
     drive some cars yourself and let the expert drive the rest.
 
@@ -83,7 +91,8 @@ class HaltingCarEnv(ScenarioParallelEnv):
     | `collision_reward`    | float              | -1.0      | reward on collision             |
     | `off_road_reward`     | float              | -1.0      | reward on leaving the road      |
 
-    `reset(seed=..., options={"case": "go"})` picks the case of one episode. With a seed,
+    `reset(seed=..., options={"case": "go"})` picks the case of one episode ("case" is the
+    only option; any other key is ignored with a UserWarning). With a seed,
     stepping every agent with `expert_actions()` reproduces `scenarios.rollout(HaltingCar(),
     seed, case)` exactly; without one, `env.unwrapped.episode_seed` says which seed was used.
 

@@ -6,9 +6,11 @@
 
 The expert drives every car except the one given to --control, which you steer with the arrow
 keys (left/right: steer, up: accelerate, down: brake; Esc or closing the window ends the
-episode). --record writes the frames as a .gif (or .mp4 when imageio-ffmpeg is installed),
-headless, atomically, refusing to replace an existing file without --overwrite. The same
-arguments give the same episode.
+episode). --render human needs pygame and a display: without one (no DISPLAY or
+WAYLAND_DISPLAY on Linux, or SDL_VIDEODRIVER=dummy/offscreen) it stops at once with one line
+instead of playing to an invisible window. --record writes the frames as a .gif (or .mp4 when
+imageio-ffmpeg is installed), headless, atomically, refusing to replace an existing file without
+--overwrite. The same arguments give the same episode.
 """
 
 from __future__ import annotations
@@ -16,6 +18,10 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import os
+import sys
+import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +33,7 @@ from scenarios import SCENARIOS
 STEER_RAD = 0.12  # steering while an arrow key is held
 ACCEL_MPS2, BRAKE_MPS2 = 2.0, -5.0
 VIDEO_SUFFIXES = (".gif", ".mp4")
+HEADLESS_SDL_DRIVERS = ("dummy", "offscreen")  # SDL video drivers that never show a window
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -60,6 +67,8 @@ def check_args(args: argparse.Namespace) -> tuple[str, Path | None]:
             fail(f"--control must name an agent car_0 ... {agents[-1]}, got {args.control!r}")
         if args.render != "human":
             fail("--control needs --render human (the keyboard is read from the window)")
+    if args.render == "human":
+        check_window()
     video = None
     if args.record is not None:
         video = check_output(args.record, args.overwrite)
@@ -67,7 +76,40 @@ def check_args(args: argparse.Namespace) -> tuple[str, Path | None]:
             fail(f"--record must end in {' or '.join(VIDEO_SUFFIXES)}, got {video.name}")
         if video.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
             fail("writing .mp4 needs imageio-ffmpeg (pip install imageio-ffmpeg); use .gif")
+        check_writable(video)
     return case, video
+
+
+def check_writable(video: Path) -> None:
+    """Exit 2 with one line now, not after the episode, if `video`'s directory refuses a new
+    file (a read-only mount refuses even root, which permission bits do not)."""
+    try:
+        with tempfile.NamedTemporaryFile(dir=video.parent, prefix=f".{video.stem}.probe."):
+            pass
+    except OSError as error:
+        fail(f"cannot write {video}: {error.strerror or error}")
+
+
+def display_problem(environ: Mapping[str, str], platform: str) -> str | None:
+    """Why a window could not be seen (None if it can): SDL set to a headless video driver, or,
+    on X11/Wayland systems (not macOS or Windows), neither DISPLAY nor WAYLAND_DISPLAY set."""
+    driver = environ.get("SDL_VIDEODRIVER", "").strip().lower()
+    if driver in HEADLESS_SDL_DRIVERS:
+        return f"SDL_VIDEODRIVER={driver} shows no window"
+    if platform not in ("darwin", "win32", "cygwin") and not (
+        environ.get("DISPLAY") or environ.get("WAYLAND_DISPLAY")
+    ):
+        return "no display is available (neither DISPLAY nor WAYLAND_DISPLAY is set)"
+    return None
+
+
+def check_window() -> None:
+    """Exit 2 with one line unless --render human can open a visible window."""
+    if importlib.util.find_spec("pygame") is None:
+        fail("--render human needs pygame: pip install 'smooth-attention[render]'")
+    problem = display_problem(os.environ, sys.platform)
+    if problem is not None:
+        fail(f"--render human needs a display: {problem}; record a video with --record FILE.gif")
 
 
 class Keyboard:
@@ -130,17 +172,36 @@ def play(args: argparse.Namespace, case: str) -> tuple[dict, list[np.ndarray]]:
     return summary, frames if args.record is not None else []
 
 
-def write_video(path: Path, frames: list[np.ndarray], fps: float) -> None:
+def encode_video(frames: list[np.ndarray], suffix: str, fps: float) -> bytes:
+    """The frames (H, W, 3) uint8 as the bytes of a .gif or .mp4 file, encoded in memory: a
+    writer that fails on the output file would leave imageio retrying it at exit."""
     import imageio.v3 as iio
 
+    video = np.stack(frames)  # (F, H, W, 3)
+    if suffix == ".gif":
+        return iio.imwrite("<bytes>", video, extension=".gif", duration=1000.0 / fps, loop=0)
+    # H.264 players want sides divisible by 16: pad with the border rather than resize
+    pad = [(0, 0), (0, -video.shape[1] % 16), (0, -video.shape[2] % 16), (0, 0)]
+    padded = np.pad(video, pad, mode="edge")
+    return iio.imwrite("<bytes>", padded, extension=".mp4", fps=fps, codec="libx264")
+
+
+def write_video(path: Path, frames: list[np.ndarray], fps: float) -> None:
+    """Encode the frames and write them to `path` atomically (no partial file on failure)."""
+    data = encode_video(frames, path.suffix.lower(), fps)
     with atomic_output(path) as temp:
-        if path.suffix.lower() == ".gif":
-            iio.imwrite(temp, np.stack(frames), duration=1000.0 / fps, loop=0)
-        else:
-            video = np.stack(frames)  # (F, H, W, 3)
-            # H.264 players want sides divisible by 16: pad with the border rather than resize
-            pad = [(0, 0), (0, -video.shape[1] % 16), (0, -video.shape[2] % 16), (0, 0)]
-            iio.imwrite(temp, np.pad(video, pad, mode="edge"), fps=fps, codec="libx264")
+        temp.write_bytes(data)
+
+
+def save_video(video: Path, frames: list[np.ndarray], args: argparse.Namespace) -> None:
+    """Write the video, exiting 2 with one line (and no file) if it cannot be written; the
+    output is checked again first, in case it appeared while the episode played."""
+    check_output(video, args.overwrite)
+    fps = args.fps or 1.0 / SCENARIOS[args.scenario]().config.recorded_dt
+    try:
+        write_video(video, frames, fps)
+    except OSError as error:
+        fail(f"cannot write {video}: {error.strerror or error}")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -148,6 +209,8 @@ def main(argv: list[str] | None = None) -> None:
     case, video = check_args(args)
     try:
         summary, frames = play(args, case)
+        if video is not None:
+            save_video(video, frames, args)
     except KeyboardInterrupt:
         fail("interrupted; nothing was written", code=130)
     message = (
@@ -156,8 +219,6 @@ def main(argv: list[str] | None = None) -> None:
         + (f" ({', '.join(summary['removed'])})" if summary["removed"] else "")
     )
     if video is not None:
-        scenario_config = SCENARIOS[args.scenario]().config
-        write_video(video, frames, args.fps or 1.0 / scenario_config.recorded_dt)
         message += f"; wrote {video} ({len(frames)} frames)"
     print(message)
 
