@@ -6,7 +6,8 @@
 - `check_output(path, overwrite)`: exit 2 if the output exists (without overwrite) or its
   directory is missing.
 - `atomic_output(path)`: context manager yielding a temporary path beside `path`, renamed onto
-  `path` on success and removed on any failure (Ctrl-C included).
+  `path` on success and removed on any failure (Ctrl-C included); a write that fails with an
+  OSError (read-only directory, full disk) exits 2 with `error: cannot write PATH: REASON`.
 - `run_main(main, argv)`: run a tool's main; a reader that closed the pipe (`tool | head`) ends
   it quietly with status 1 instead of a BrokenPipeError traceback.
 """
@@ -76,13 +77,18 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success it replaces `path`, else it is removed.
 
     The temporary name keeps the target's suffix, so writers that infer the format from the file
-    name (e.g. matplotlib's savefig) still work.
+    name (e.g. matplotlib's savefig) still work. The block must only write the temporary file:
+    an OSError raised in it, or by the final rename, ends the program with one line
+    `error: cannot write PATH: REASON` and exit status 2 (`fail`).
     """
     target = Path(path)
     temp = target.with_name(f".{target.stem}.{secrets.token_hex(6)}.tmp{target.suffix}")
     try:
         yield temp
         os.replace(temp, target)
-    except BaseException:
-        temp.unlink(missing_ok=True)
+    except BaseException as err:
+        with contextlib.suppress(OSError):
+            temp.unlink(missing_ok=True)
+        if isinstance(err, OSError):
+            fail(f"cannot write {target}: {err.strerror or err}")
         raise

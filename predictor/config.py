@@ -85,7 +85,7 @@ class TrainConfig:
 
     variant: str = "ours"  # one of VARIANTS
     seed: int = 0  # seeds model initialisation, batch order and rollout samples
-    epochs: int = 200  # passes over the training split
+    epochs: int = 200  # passes over the training split (>= 1: a run without one has no model)
     batch_size: int = 8  # scenes per optimiser step
     lr: float = 1e-3  # Adam learning rate
     beta1: float = 0.01  # weight of the variance penalties
@@ -99,20 +99,20 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
             raise ValueError(f"unknown variant {self.variant!r}; choose from {sorted(VARIANTS)}")
-        checks = {
-            "epochs": self.epochs >= 0,
-            "batch_size": self.batch_size >= 1,
-            "lr": self.lr > 0,
-            "beta1": self.beta1 >= 0,
-            "beta2": self.beta2 >= 0,
-            "tau": self.tau >= 0,
-            "grad_clip_norm": self.grad_clip_norm >= 0,
-            "eval_every": self.eval_every >= 1,
-            "threads": self.threads >= 1,
+        checks = {  # field -> (holds, rule)
+            "epochs": (self.epochs >= 1, ">= 1"),
+            "batch_size": (self.batch_size >= 1, ">= 1"),
+            "lr": (self.lr > 0, "> 0"),
+            "beta1": (self.beta1 >= 0, ">= 0"),
+            "beta2": (self.beta2 >= 0, ">= 0"),
+            "tau": (self.tau >= 0, ">= 0"),
+            "grad_clip_norm": (self.grad_clip_norm >= 0, ">= 0"),
+            "eval_every": (self.eval_every >= 1, ">= 1"),
+            "threads": (self.threads >= 1, ">= 1"),
         }
-        for name, ok in checks.items():
+        for name, (ok, rule) in checks.items():
             if not ok:
-                raise ValueError(f"TrainConfig.{name} is out of range: {getattr(self, name)}")
+                raise ValueError(f"TrainConfig.{name} must be {rule}, got {getattr(self, name)}")
         spec = VARIANTS[self.variant]
         if not spec.smooth and self.beta2 != 0:
             raise ValueError(f"variant {self.variant!r} has no smoothness term; beta2 must be 0")

@@ -1,4 +1,9 @@
-"""Using a trained model: load checkpoints, predict a split by feeding back means, score it.
+"""Evaluation: predict a dataset split with a trained run or a baseline and score it.
+
+`evaluate_run` and `evaluate_baseline` are the one evaluation path of the package (used by
+tools/evaluate.py, the reproduction and the tests); each returns an `Evaluation`: the scores, the
+JSON record tools/evaluate.py writes (`to_dict`) and the `Predictions` for the plots. Models
+predict by feeding back their predicted means after the observed steps.
 
 Checkpoints (written by `predictor.training`) are plain dicts that load with
 `torch.load(weights_only=True)`: `format`, `version`, `model_state`, `model_config`,
@@ -8,24 +13,43 @@ optimizer and random-number-generator states needed to resume.
 
 from __future__ import annotations
 
+import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
-from predictor.baselines import constant_velocity
+from predictor.baselines import BASELINES, constant_velocity
 from predictor.config import ModelConfig, model_config_from_dict
-from predictor.data import Batch
-from predictor.metrics import attention_accuracy, displacement_metrics, prediction_mask
+from predictor.data import Batch, TrajectoryDataset
+from predictor.format import DatasetMeta
+from predictor.metrics import (
+    attention_accuracy,
+    displacement_metrics,
+    headline,
+    prediction_mask,
+)
 from predictor.model import SmoothAttentionPredictor, expand_attention
+from predictor.predictions import Predictions
 
 CHECKPOINT_FORMAT = "smooth-attention-checkpoint"
 CHECKPOINT_VERSION = 1
 
 
+CHECKPOINTS = ("best", "last")  # a run's checkpoint files, without ".pt"
+MATCHED_DATA = ("scenario", "dt", "num_observed", "num_predicted")  # run vs evaluated file
+
+
 class CheckpointError(ValueError):
     """A file is not a readable checkpoint of this package; the message is one line."""
+
+
+class EvaluationError(ValueError):
+    """An evaluation cannot be done as asked (empty split, data of another kind); one line."""
 
 
 def read_checkpoint(path: str | os.PathLike) -> dict:
@@ -57,23 +81,19 @@ def load_model(path: str | os.PathLike) -> tuple[SmoothAttentionPredictor, dict]
     return model, checkpoint
 
 
-@dataclass
-class Predictions:
-    """Test-time predictions of n scenes (numpy)."""
-
-    pred_mean: np.ndarray  # (n, T_pred, N, 2) float32 [m], steps T_obs .. T-1
-    attention: np.ndarray  # (n, T-1, N, N) float32 theta^t_ij, t = 0 .. T-2 (NaN: no attention)
-
-
+# --------------------------------------------------------------------------- predicting
 def predict_model(
     model: SmoothAttentionPredictor, batch: Batch, num_observed: int, batch_size: int = 32
-) -> Predictions:
+) -> tuple[np.ndarray, np.ndarray]:
     """Predict every scene of `batch` from its observed steps, feeding back the predicted means.
 
-    The attention is theta^t over the teacher-forced observed part (t < T_obs-1) followed by the
-    fed-back part (t = T_obs-1 .. T-2).
+    Returns (pred_mean (n, T_pred, N, 2) [m] of steps T_obs .. T-1, attention (n, T-1, N, N)),
+    both float32. The attention is theta^t over the teacher-forced observed part
+    (t < T_obs-1) followed by the fed-back part (t = T_obs-1 .. T-2).
     """
-    means, attentions = [], []
+    num_agents, num_steps = batch.num_agents, batch.num_steps
+    means = [np.zeros((0, num_steps - num_observed, num_agents, 2), np.float32)]
+    attentions = [np.zeros((0, num_steps - 1, num_agents, num_agents), np.float32)]
     model.eval()
     for start in range(0, batch.batch_size, batch_size):
         part = slice(start, start + batch_size)
@@ -83,81 +103,193 @@ def predict_model(
         theta = torch.cat([out.attention[:, :-1], out.rollout_attention], 1)  # (b, T-1, N, N-1)
         means.append(out.rollout.mean.numpy().astype(np.float32))
         attentions.append(expand_attention(theta).numpy().astype(np.float32))
-    num_agents, num_steps = batch.num_agents, batch.num_steps
-    if not means:
-        return Predictions(
-            np.zeros((0, num_steps - num_observed, num_agents, 2), np.float32),
-            np.zeros((0, num_steps - 1, num_agents, num_agents), np.float32),
-        )
-    return Predictions(np.concatenate(means), np.concatenate(attentions))
+    return np.concatenate(means), np.concatenate(attentions)
 
 
-def predict_const_vel(batch: Batch, num_observed: int) -> Predictions:
-    """Constant-velocity predictions (no attention: NaN)."""
+def predict_baseline(name: str, batch: Batch, num_observed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(pred_mean, attention) of a baseline, shaped as `predict_model`'s; attention is NaN."""
+    if name not in BASELINES:
+        raise EvaluationError(f"unknown baseline {name!r}; choose from {', '.join(BASELINES)}")
     pred = constant_velocity(batch.positions.numpy(), batch.valid.numpy(), num_observed)
     shape = (batch.batch_size, batch.num_steps - 1, batch.num_agents, batch.num_agents)
-    return Predictions(pred, np.full(shape, np.nan, dtype=np.float32))
+    return pred, np.full(shape, np.nan, dtype=np.float32)
 
 
-def score(
-    predictions: Predictions, batch: Batch, num_observed: int, case_names: tuple[str, ...]
-) -> dict:
-    """ADE/FDE per agent group and case, and attention accuracy (see `predictor.metrics`)."""
-    valid = batch.valid.numpy()
-    true = batch.positions.numpy()[:, num_observed:]  # (n, T_pred, N, 2)
-    case = batch.case.numpy()
+def score(predictions: Predictions) -> dict:
+    """ADE/FDE per agent group and case, and attention accuracy (see `predictor.metrics`):
+    {"main_agents": ..., "all_agents": ..., "attention_accuracy": ...}."""
+    p = predictions
     result = displacement_metrics(
-        predictions.pred_mean, true, prediction_mask(valid, num_observed), case, case_names
+        p.pred_mean,
+        p.true_xy[:, p.num_observed :],
+        prediction_mask(p.valid, p.num_observed),
+        p.case,
+        p.case_names,
     )
     result["attention_accuracy"] = attention_accuracy(
-        predictions.attention,
-        batch.attention.numpy(),
-        batch.interaction.numpy(),
-        valid,
-        num_observed,
-        case,
-        case_names,
+        p.attention, p.attention_label, p.interaction, p.valid, p.num_observed, p.case, p.case_names
     )
     return result
 
 
-def save_predictions(
-    path: str | os.PathLike,
-    predictions: Predictions,
-    batch: Batch,
-    num_observed: int,
-    dt: float,
-    case_names: tuple[str, ...],
-    role_names: tuple[str, ...],
-) -> None:
-    """Write the predictions file read by the plotting tool (np.savez to exactly `path`)."""
-    roles = batch.roles if batch.roles is not None else torch.zeros(batch.valid.shape[::2])
-    with open(path, "wb") as stream:  # a file object: numpy adds no ".npz" suffix
-        _savez(stream, predictions, batch, roles, num_observed, dt, case_names, role_names)
+# --------------------------------------------------------------------------- evaluating
+@dataclass(frozen=True)
+class RunSource:
+    """The checkpoint an evaluation of a trained run used."""
+
+    run: str  # the run directory, as given
+    checkpoint: str  # file name in it, e.g. "best.pt"
+    epoch: int  # training epochs behind the checkpoint
+    train_data: str  # absolute path of the file the run was trained on
 
 
-def _savez(
-    stream,
-    predictions: Predictions,
-    batch: Batch,
-    roles: torch.Tensor,
-    num_observed: int,
-    dt: float,
-    case_names: tuple[str, ...],
-    role_names: tuple[str, ...],
+@dataclass(frozen=True)
+class Evaluation:
+    """One predictor scored on one split of one dataset file."""
+
+    predictor: str  # variant of the run ("ours", ...) or baseline name ("const_vel")
+    data: str  # absolute path of the evaluated file
+    meta: DatasetMeta  # of the evaluated file
+    scores: dict  # main_agents, all_agents, attention_accuracy (see `score`)
+    predictions: Predictions  # every scene of the split, in file order
+    source: RunSource | None = None  # None for a baseline
+
+    @property
+    def split(self) -> str:
+        return self.predictions.split
+
+    @property
+    def scenes(self) -> int:
+        return self.predictions.n
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON record of tools/evaluate.py (eval.json): description, then the scores."""
+        info: dict[str, Any] = {
+            "data": self.data,
+            "split": self.split,
+            "scenes": self.scenes,
+            "num_observed": self.meta.num_observed,
+            "num_predicted": self.meta.num_predicted,
+            "dt": self.meta.dt,
+            "headline": "main_agents",
+            "predictor": self.predictor,
+        }
+        if self.source is not None:
+            source = self.source
+            info.update(
+                run=source.run,
+                checkpoint=source.checkpoint,
+                epoch=source.epoch,
+                train_data=source.train_data,
+            )
+        return {**info, **self.scores}
+
+    def headline(self) -> str:
+        """One line with the main-agent ADE/FDE and the attention accuracy."""
+        return headline(self.scores)
+
+    def save_predictions(
+        self, path: str | os.PathLike, rows: Sequence[int] | np.ndarray | None = None
+    ) -> None:
+        """Write the predictions file (all scenes, or the split rows `rows`) to exactly `path`."""
+        predictions = self.predictions if rows is None else self.predictions.select(rows)
+        predictions.save(path)
+
+
+def evaluate_run(
+    run_dir: str | os.PathLike,
+    data_path: str | os.PathLike,
+    split: str = "test",
+    checkpoint: str = "best",
+    batch_size: int = 32,
+) -> Evaluation:
+    """Score checkpoint `checkpoint` ("best" or "last") of a run on a split of `data_path`.
+
+    Raises CheckpointError for a missing or unreadable checkpoint, FormatError for a bad data
+    file, EvaluationError for an empty split or a file whose scenario, dt or horizons differ from
+    the run's training data.
+    """
+    if checkpoint not in CHECKPOINTS:
+        raise EvaluationError(f"checkpoint must be one of {CHECKPOINTS}, got {checkpoint!r}")
+    if batch_size < 1:
+        raise EvaluationError(f"batch_size must be >= 1, got {batch_size}")
+    path = Path(run_dir) / f"{checkpoint}.pt"
+    model, stored = load_model(path)
+    dataset = _load_split(data_path, split)
+    check_data_matches(stored, dataset.meta, path, data_path)
+    pred_mean, attention = predict_model(
+        model, dataset.all(), dataset.meta.num_observed, batch_size
+    )
+    source = RunSource(
+        run=os.fspath(run_dir),
+        checkpoint=path.name,
+        epoch=int(stored["epoch"]),
+        train_data=str(stored["data"]["path"]),
+    )
+    variant = str(stored["train_config"]["variant"])
+    return _evaluation(dataset, variant, pred_mean, attention, source)
+
+
+def evaluate_baseline(name: str, data_path: str | os.PathLike, split: str = "test") -> Evaluation:
+    """Score the baseline `name` (one of predictor.baselines.BASELINES) on a split.
+
+    Raises EvaluationError for an unknown name or an empty split, FormatError for a bad file.
+    """
+    if name not in BASELINES:
+        raise EvaluationError(f"unknown baseline {name!r}; choose from {', '.join(BASELINES)}")
+    dataset = _load_split(data_path, split)
+    pred_mean, attention = predict_baseline(name, dataset.all(), dataset.meta.num_observed)
+    return _evaluation(dataset, name, pred_mean, attention, None)
+
+
+def check_data_matches(
+    checkpoint: dict,
+    meta: DatasetMeta,
+    checkpoint_path: str | os.PathLike,
+    data_path: str | os.PathLike,
 ) -> None:
-    np.savez(
-        stream,
-        pred_mean=predictions.pred_mean.astype(np.float32),
-        true_xy=batch.positions.numpy().astype(np.float32),
-        valid=batch.valid.numpy().astype(bool),
-        case=batch.case.numpy().astype(np.int64),
-        case_names=np.array(case_names, dtype=str),
-        role_names=np.array(role_names, dtype=str),
-        roles=roles.numpy().astype(np.int64),
-        attention=predictions.attention.astype(np.float32),
-        attention_label=batch.attention.numpy().astype(np.int16),
-        interaction=batch.interaction.numpy().astype(bool),
-        num_observed=np.int64(num_observed),
-        dt=np.float64(dt),
+    """Raise EvaluationError unless `meta` has the scenario, dt and horizons the checkpoint's run
+    was trained on (`MATCHED_DATA`)."""
+    trained = checkpoint.get("data")
+    if not isinstance(trained, dict) or any(key not in trained for key in MATCHED_DATA):
+        raise CheckpointError(f"{checkpoint_path}: inconsistent checkpoint (no data description)")
+    differ = [key for key in MATCHED_DATA if not _same(trained[key], getattr(meta, key))]
+    if differ:
+        was = ", ".join(f"{key} {trained[key]!r}" for key in differ)
+        now = ", ".join(f"{key} {getattr(meta, key)!r}" for key in differ)
+        raise EvaluationError(
+            f"{checkpoint_path} was trained on data with {was}, but {data_path} has {now}"
+        )
+
+
+def _same(a: object, b: object) -> bool:
+    if isinstance(a, float) or isinstance(b, float):
+        return math.isclose(float(a), float(b), rel_tol=1e-9)
+    return a == b
+
+
+def _load_split(data_path: str | os.PathLike, split: str) -> TrajectoryDataset:
+    dataset = TrajectoryDataset(data_path, split)
+    if len(dataset) == 0:
+        raise EvaluationError(f"{data_path}: the {split} split is empty")
+    return dataset
+
+
+def _evaluation(
+    dataset: TrajectoryDataset,
+    predictor: str,
+    pred_mean: np.ndarray,
+    attention: np.ndarray,
+    source: RunSource | None,
+) -> Evaluation:
+    predictions = Predictions.from_split(
+        dataset.data, dataset.meta, dataset.split, predictor, pred_mean, attention
+    )
+    return Evaluation(
+        predictor=predictor,
+        data=str(Path(dataset.path).resolve()),
+        meta=dataset.meta,
+        scores=score(predictions),
+        predictions=predictions,
+        source=source,
     )

@@ -37,7 +37,7 @@ of the fed-back rollout. Absent agents are masked out of the attention.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import torch
@@ -113,19 +113,38 @@ class StepOutputs:
     state: RecurrentState
 
 
-@dataclass
+@dataclass(frozen=True)
+class Rollout:
+    """Predictions fed back from step T_obs on, batch-first."""
+
+    gaussian: Gaussian2D  # (B, T_pred, N, .) predictions of t = T_obs .. T-1
+    attention: Tensor  # (B, T_pred, N, N-1) theta^t, t = T_obs-1 .. T-2
+    present: Tensor  # (B, N) agents rolled out (present at step T_obs-1)
+
+
+@dataclass(frozen=True)
 class ModelOutput:
     """Everything the losses and the evaluation need, batch-first.
 
     `attention` tensors are compact: entry [..., i, k] is the weight of agent i on its k-th
     other agent (agents 0..N-1 without i, in order); `expand_attention` gives (..., N, N).
+    The rollout fields are None when the pass made no rollout.
     """
 
-    one_step: Gaussian2D | None  # (B, S1, N, .) predictions of t = 1 .. S1 (teacher forced)
-    attention: Tensor | None  # (B, S1, N, N-1) theta^t, t = 0 .. S1-1
-    rollout: Gaussian2D | None  # (B, T_pred, N, .) predictions of t = T_obs .. T-1, fed back
-    rollout_attention: Tensor | None  # (B, T_pred, N, N-1) theta^t, t = T_obs-1 .. T-2
-    rollout_present: Tensor | None  # (B, N) agents rolled out (present at step T_obs-1)
+    one_step: Gaussian2D  # (B, S1, N, .) predictions of t = 1 .. S1 (teacher forced)
+    attention: Tensor  # (B, S1, N, N-1) theta^t, t = 0 .. S1-1
+    rollout: Gaussian2D | None = None  # (B, T_pred, N, .) predictions of t = T_obs .. T-1
+    rollout_attention: Tensor | None = None  # (B, T_pred, N, N-1) theta^t, t = T_obs-1 .. T-2
+    rollout_present: Tensor | None = None  # (B, N) agents rolled out (present at step T_obs-1)
+
+    def with_rollout(self, rollout: Rollout) -> ModelOutput:
+        """A copy holding `rollout`."""
+        return replace(
+            self,
+            rollout=rollout.gaussian,
+            rollout_attention=rollout.attention,
+            rollout_present=rollout.present,
+        )
 
 
 def edge_index(num_agents: int, device: torch.device | None = None) -> tuple[Tensor, Tensor]:
@@ -206,9 +225,9 @@ class SmoothAttentionPredictor(nn.Module):
         parts = [observed] if rest is None else [observed, rest]
         one_step = Gaussian2D.cat([p.gaussian for p in parts], 0).time_first()
         attention = torch.cat([p.attention for p in parts], 0).transpose(0, 1)  # (B, T-1, N, N-1)
-        out = ModelOutput(one_step, attention, None, None, None)
+        out = ModelOutput(one_step=one_step, attention=attention)
         if rollout:
-            self._attach_rollout(out, steps, observed, sample=True)
+            out = out.with_rollout(self._rollout(steps, observed, sample=True))
         return out
 
     @torch.no_grad()
@@ -223,10 +242,9 @@ class SmoothAttentionPredictor(nn.Module):
         steps = self._prepare(positions, valid, num_observed, labels)
         observed = self._block(steps, 0, num_observed, None)
         out = ModelOutput(
-            observed.gaussian.time_first(), observed.attention.transpose(0, 1), None, None, None
+            one_step=observed.gaussian.time_first(), attention=observed.attention.transpose(0, 1)
         )
-        self._attach_rollout(out, steps, observed, sample=False)
-        return out
+        return out.with_rollout(self._rollout(steps, observed, sample=False))
 
     # ----------------------------------------------------------------------------- internals
     def _prepare(
@@ -278,10 +296,8 @@ class SmoothAttentionPredictor(nn.Module):
             state,
         )
 
-    def _attach_rollout(
-        self, out: ModelOutput, steps: _Steps, observed: StepOutputs, sample: bool
-    ) -> None:
-        """Fill `out.rollout*`: feed back samples (or means) from step T_obs on."""
+    def _rollout(self, steps: _Steps, observed: StepOutputs, sample: bool) -> Rollout:
+        """Feed back samples (or means) from step T_obs on."""
         t_obs = steps.num_observed
         num_steps = steps.pos.shape[0]
         present = steps.present[t_obs - 1]  # (B, N) agents rolled out
@@ -297,11 +313,14 @@ class SmoothAttentionPredictor(nn.Module):
             gaussians.append(gaussian)
             attentions.append(block.attention[0])
             state, prev = block.state, current
-        out.rollout = Gaussian2D(
-            torch.stack([g.mean for g in gaussians], 1), torch.stack([g.tril for g in gaussians], 1)
-        )  # (B, T_pred, N, 2), (B, T_pred, N, 3)
-        out.rollout_attention = torch.stack(attentions, 1)  # (B, T_pred, N, N-1)
-        out.rollout_present = present
+        return Rollout(
+            gaussian=Gaussian2D(
+                torch.stack([g.mean for g in gaussians], 1),  # (B, T_pred, N, 2)
+                torch.stack([g.tril for g in gaussians], 1),  # (B, T_pred, N, 3)
+            ),
+            attention=torch.stack(attentions, 1),  # (B, T_pred, N, N-1)
+            present=present,
+        )
 
     def _run(
         self,

@@ -7,10 +7,8 @@ global figure state is created or leaked. Main cars are coloured by role ("main_
 
 from __future__ import annotations
 
+import math
 import os
-import zipfile
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -19,6 +17,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from predictor.format import DatasetMeta, TrajectorySet
+from predictor.predictions import Predictions
 
 ROAD_COLOR = "#ececec"  # axes background: the road area
 TRUE_COLOR = "#8c8c8c"  # ground-truth lines
@@ -32,6 +31,9 @@ _NAMED_COLORS = {
     "purple": "#9467bd",
 }
 _PALETTE = ("#1f77b4", "#d62728", "#ff7f0e", "#9467bd", "#17becf")
+MIN_DPI, MAX_DPI = 10, 1200  # resolution accepted by save_figure [dots per inch]
+MAX_PIXELS = 100_000_000  # largest canvas save_figure renders (~400 MB of RGBA)
+MAX_SAMPLES_PER_CASE = 20  # plot_samples rows
 _MIN_DOT, _MAX_DOT = 3.0, 40.0  # scatter marker areas [pt^2] at the first and last step
 
 
@@ -119,7 +121,19 @@ def new_figure(width: float, height: float) -> Figure:
 
 
 def save_figure(fig: Figure, path: str | os.PathLike, dpi: int = 120) -> None:
-    """Write the figure; the format follows the file suffix (e.g. .png, .pdf, .svg)."""
+    """Write the figure; the format follows the file suffix (e.g. .png, .pdf, .svg).
+
+    Raises PlotInputError if `dpi` is outside [MIN_DPI, MAX_DPI] or the canvas would exceed
+    MAX_PIXELS (the renderer would otherwise run out of memory).
+    """
+    if not MIN_DPI <= dpi <= MAX_DPI:
+        raise PlotInputError(f"dpi must be in [{MIN_DPI}, {MAX_DPI}], got {dpi}")
+    width, height = (math.ceil(inches * dpi) for inches in fig.get_size_inches())
+    if width * height > MAX_PIXELS:
+        raise PlotInputError(
+            f"the figure would be {width} x {height} pixels at dpi {dpi}, more than the limit of "
+            f"{MAX_PIXELS // 10**6} million; lower the dpi"
+        )
     fig.savefig(path, dpi=dpi)
 
 
@@ -129,8 +143,10 @@ def save_figure(fig: Figure, path: str | os.PathLike, dpi: int = 120) -> None:
 
 def plot_samples(data: TrajectorySet, meta: DatasetMeta, num_per_case: int = 4) -> Figure:
     """One column per case, the first `num_per_case` trajectories of that case as rows."""
-    if num_per_case < 1:
-        raise PlotInputError(f"num_per_case must be >= 1, got {num_per_case}")
+    if not 1 <= num_per_case <= MAX_SAMPLES_PER_CASE:
+        raise PlotInputError(
+            f"num_per_case must be in [1, {MAX_SAMPLES_PER_CASE}], got {num_per_case}"
+        )
     if data.n == 0:
         raise PlotInputError("the split has no trajectories to plot")
     cases = list(meta.case_names)
@@ -167,86 +183,7 @@ def plot_samples(data: TrajectorySet, meta: DatasetMeta, num_per_case: int = 4) 
 
 
 # ---------------------------------------------------------------------------------------------
-# Predictions file (written by tools/evaluate.py)
-
-
-@dataclass(frozen=True)
-class Predictions:
-    """Contents of a predictions .npz (n scenes, T steps, N agents, T_pred predicted steps)."""
-
-    pred_mean: np.ndarray  # (n, T_pred, N, 2) predicted mean positions [m]
-    true_xy: np.ndarray  # (n, T, N, 2) true positions [m]
-    valid: np.ndarray  # (n, T, N) bool
-    case: np.ndarray  # (n,) index into case_names
-    case_names: tuple[str, ...]
-    role_names: tuple[str, ...]
-    roles: np.ndarray  # (n, N) index into role_names
-    attention: np.ndarray  # (n, T-1, N, N) model attention theta[t, i, j]; NaN if none
-    attention_label: np.ndarray  # (n, T, N) ground-truth attended agent, -1 none
-    interaction: np.ndarray  # (n, T) bool
-    num_observed: int
-    dt: float  # [s]
-
-    @property
-    def n(self) -> int:
-        return int(self.true_xy.shape[0])
-
-
-_PRED_SHAPES = {  # key -> expected shape in terms of n, T, P (= T_pred), N
-    "pred_mean": ("n", "P", "N", 2),
-    "true_xy": ("n", "T", "N", 2),
-    "valid": ("n", "T", "N"),
-    "case": ("n",),
-    "roles": ("n", "N"),
-    "attention": ("n", "T-1", "N", "N"),
-    "attention_label": ("n", "T", "N"),
-    "interaction": ("n", "T"),
-}
-
-
-def load_predictions(path: str | os.PathLike) -> Predictions:
-    """Read and check a predictions .npz; raises PlotInputError with one line on any problem."""
-    path = Path(path)
-    if not path.is_file():
-        raise PlotInputError(f"{path}: no such file")
-    if not zipfile.is_zipfile(path):
-        raise PlotInputError(f"{path}: not an .npz file")
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            arrays = {key: npz[key] for key in npz.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
-        raise PlotInputError(f"{path}: not a readable .npz file ({err})") from None
-    required = set(_PRED_SHAPES) | {"case_names", "role_names", "num_observed", "dt"}
-    missing = sorted(required - set(arrays))
-    if missing:
-        raise PlotInputError(f"{path}: missing arrays {missing}")
-    n, steps, agents = arrays["true_xy"].shape[:3] if arrays["true_xy"].ndim == 4 else (0, 0, 0)
-    sizes = {
-        "n": n,
-        "T": steps,
-        "T-1": steps - 1,
-        "N": agents,
-        "P": arrays["pred_mean"].shape[1] if arrays["pred_mean"].ndim == 4 else -1,
-    }
-    for key, shape in _PRED_SHAPES.items():
-        expected = tuple(sizes.get(s, s) for s in shape)
-        if arrays[key].shape != expected:
-            raise PlotInputError(
-                f"{path}: {key} has shape {arrays[key].shape}, expected {expected}"
-            )
-    num_observed = int(arrays["num_observed"])
-    if num_observed < 1 or num_observed + sizes["P"] > steps:
-        raise PlotInputError(
-            f"{path}: num_observed={num_observed} with {sizes['P']} predicted "
-            f"steps does not fit T={steps}"
-        )
-    return Predictions(
-        **{key: arrays[key] for key in _PRED_SHAPES},
-        case_names=tuple(str(s) for s in arrays["case_names"]),
-        role_names=tuple(str(s) for s in arrays["role_names"]),
-        num_observed=num_observed,
-        dt=float(arrays["dt"]),
-    )
+# Predictions (predictor.predictions; written by tools/evaluate.py)
 
 
 def _check_index(pred: Predictions, index: int) -> None:
@@ -254,9 +191,9 @@ def _check_index(pred: Predictions, index: int) -> None:
         raise PlotInputError(f"scene index {index} out of range: the file has {pred.n} scenes")
 
 
-def _case_name(pred: Predictions, index: int) -> str:
-    case = int(pred.case[index])
-    return pred.case_names[case] if 0 <= case < len(pred.case_names) else f"case {case}"
+def _scene_name(pred: Predictions, index: int) -> str:
+    """E.g. "test scene 7 (late)": the scene's row in its split and its case."""
+    return f"{pred.split} scene {int(pred.scene[index])} ({pred.case_names[int(pred.case[index])]})"
 
 
 def plot_predictions(pred: Predictions, index: int) -> Figure:
@@ -282,7 +219,7 @@ def plot_predictions(pred: Predictions, index: int) -> Figure:
     )
     _style_road_axes(ax)
     ax.set_title(
-        f"scene {index} ({_case_name(pred, index)}): predicted means (dots, size grows "
+        f"{_scene_name(pred, index)}: predicted means (dots, size grows "
         f"with time) vs truth (grey lines); | = last observed step",
         fontsize="small",
     )
@@ -361,8 +298,7 @@ def plot_attention(pred: Predictions, index: int, agent: int, target: int) -> Fi
     ax.set_ylabel("attention")
     agent_role = pred.role_names[roles[agent]]
     ax.set_title(
-        f"scene {index} ({_case_name(pred, index)}): attention of agent {agent} "
-        f"({agent_role}) on agent {target}",
+        f"{_scene_name(pred, index)}: attention of agent {agent} ({agent_role}) on agent {target}",
         fontsize="small",
     )
     ax.legend(fontsize="small", loc="upper left")

@@ -8,25 +8,39 @@ Determinism: the seed fixes the initial weights (torch RNG), the batch order (th
 generator) and the rollout samples (torch RNG). `last.pt` stores the optimizer state, the epoch,
 the best validation score and the torch, numpy, python and loader RNG states, so a resumed run
 reproduces the uninterrupted one bit for bit (same thread count assumed).
+
+Failures: everything that can be checked (run directory, data file, resume compatibility) is
+checked before the run directory is touched; a fresh run that fails before its first checkpoint
+(`last.pt`) removes the files and directories it created, so it blocks neither a re-run nor
+`--resume`. A resumed run may change only `RESUME_MAY_CHANGE` (see `resume_configs`). Write
+failures (read-only directory, full disk) are a RunError naming the file.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
 import random
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 from tqdm import tqdm
 
 from predictor import __version__
-from predictor.config import ModelConfig, TrainConfig, config_to_dict
+from predictor.config import (
+    ModelConfig,
+    TrainConfig,
+    config_to_dict,
+    model_config_from_dict,
+    train_config_from_dict,
+)
 from predictor.data import Batch, TrajectoryDataset, make_loader
 from predictor.evaluation import (
     CHECKPOINT_FORMAT,
@@ -37,8 +51,10 @@ from predictor.evaluation import (
 )
 from predictor.losses import LossWeights, compute_loss
 from predictor.model import SmoothAttentionPredictor
+from predictor.predictions import Predictions
 
 RUN_FILES = ("config.json", "metrics.jsonl", "last.pt", "best.pt")
+RESUME_MAY_CHANGE = ("epochs", "threads", "eval_every")  # TrainConfig fields; nothing else may
 
 
 class RunError(ValueError):
@@ -75,10 +91,14 @@ def train_step(
 
 
 def validation_scores(
-    model: SmoothAttentionPredictor, batch: Batch, num_observed: int, case_names: tuple[str, ...]
+    model: SmoothAttentionPredictor, val_set: TrajectoryDataset
 ) -> dict[str, float | None]:
     """ADE/FDE [m] of the fed-back means for the main agents and all agents."""
-    result = score(predict_model(model, batch, num_observed), batch, num_observed, case_names)
+    pred_mean, attention = predict_model(model, val_set.all(), val_set.meta.num_observed)
+    predictions = Predictions.from_split(
+        val_set.data, val_set.meta, val_set.split, "validation", pred_mean, attention
+    )
+    result = score(predictions)
     main, every = result["main_agents"]["overall"], result["all_agents"]["overall"]
     return {
         "ade_main": main["ade"],
@@ -138,45 +158,87 @@ def seed_everything(seed: int) -> None:
 
 
 # --------------------------------------------------------------------------- files
+@contextlib.contextmanager
+def _writing(path: Path, action: str = "write") -> Iterator[None]:
+    """Turn an OSError of the block into a one-line RunError naming `path`."""
+    try:
+        yield
+    except OSError as err:
+        raise RunError(f"cannot {action} {path}: {err.strerror or err}") from None
+
+
 def atomic_save(obj: object, path: Path) -> None:
-    """torch.save to a temporary file beside `path`, then rename."""
+    """torch.save to a temporary file beside `path`, then rename (RunError if that fails)."""
     temp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        torch.save(obj, temp)
-        os.replace(temp, path)
+        with _writing(path):
+            torch.save(obj, temp)
+            os.replace(temp, path)
     finally:
-        temp.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            temp.unlink(missing_ok=True)
 
 
 def atomic_write_text(text: str, path: Path) -> None:
-    """Write text to a temporary file beside `path`, then rename."""
+    """Write text to a temporary file beside `path`, then rename (RunError if that fails)."""
     temp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        temp.write_text(text)
-        os.replace(temp, path)
+        with _writing(path):
+            temp.write_text(text)
+            os.replace(temp, path)
     finally:
-        temp.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            temp.unlink(missing_ok=True)
 
 
-def prepare_out_dir(out_dir: Path, resume: bool, overwrite: bool) -> None:
-    """Check the run directory: a fresh run needs it absent or empty (or --overwrite)."""
+def check_out_dir(out_dir: Path, resume: bool, overwrite: bool) -> None:
+    """Check, without changing anything, that `out_dir` can hold the run as asked: a fresh run
+    needs it absent or empty (or overwrite), a resumed one needs its last.pt."""
     if resume and overwrite:
         raise RunError("--resume and --overwrite exclude each other")
     if out_dir.exists() and not out_dir.is_dir():
         raise RunError(f"{out_dir} exists and is not a directory")
     if resume:
+        if not out_dir.exists():
+            raise RunError(f"nothing to resume: {out_dir} does not exist")
         if not (out_dir / "last.pt").is_file():
-            raise RunError(f"nothing to resume: {out_dir / 'last.pt'} does not exist")
-        return
-    if out_dir.is_dir() and any(out_dir.iterdir()):
-        if not overwrite:
             raise RunError(
-                f"{out_dir} is not empty; pass --resume to continue the run there "
-                "or --overwrite to start over"
+                f"nothing to resume in {out_dir}: it has no last.pt (the run never finished an "
+                "epoch); start the run again without --resume (with --overwrite if the directory "
+                "is not empty)"
             )
+        return
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
+        raise RunError(
+            f"{out_dir} is not empty; pass --resume to continue the run there "
+            "or --overwrite to start over"
+        )
+
+
+def claim_out_dir(out_dir: Path, overwrite: bool) -> list[Path]:
+    """Create `out_dir` (and missing parents) and, with overwrite, remove an old run's files.
+
+    Returns the directories created, outermost first, for `_remove_failed_start`.
+    """
+    created = [p for p in (out_dir, *out_dir.parents) if not p.exists()][::-1]
+    with _writing(out_dir, "create run directory"):
+        out_dir.mkdir(parents=True, exist_ok=True)
+    if overwrite:
         for name in RUN_FILES + ("eval.json",):
+            with _writing(out_dir / name, "remove"):
+                (out_dir / name).unlink(missing_ok=True)
+    return created
+
+
+def _remove_failed_start(out_dir: Path, created: list[Path]) -> None:
+    """Remove what a fresh run that never wrote last.pt left: its files, then the directories
+    it created (only if empty)."""
+    for name in RUN_FILES:
+        with contextlib.suppress(OSError):
             (out_dir / name).unlink(missing_ok=True)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    for directory in reversed(created):
+        with contextlib.suppress(OSError):
+            directory.rmdir()
 
 
 def describe_data(path: str, dataset: TrajectoryDataset, val_count: int) -> dict:
@@ -298,48 +360,66 @@ class TrainResult:
         )
 
 
-def stored_configs(out_dir: str | os.PathLike) -> tuple[ModelConfig, TrainConfig]:
-    """The configs of the run in `out_dir` (from last.pt)."""
-    from predictor.config import model_config_from_dict, train_config_from_dict
+def resume_configs(
+    out_dir: str | os.PathLike, changes: Mapping[str, Any] | None = None
+) -> tuple[ModelConfig, TrainConfig]:
+    """The configs to resume the run in `out_dir` with: the stored ones (from last.pt) with
+    `changes` applied, built through the validating constructors.
 
-    checkpoint = read_checkpoint(Path(out_dir) / "last.pt")
+    `changes` may hold any ModelConfig or TrainConfig field; those in RESUME_MAY_CHANGE are
+    applied, any other must equal the stored value. Raises RunError if there is nothing to
+    resume or a change is forbidden or unknown, ValueError for an out-of-range value.
+    """
+    out = Path(out_dir)
+    check_out_dir(out, resume=True, overwrite=False)
+    checkpoint = read_checkpoint(out / "last.pt")
+    stored = {**checkpoint["model_config"], **checkpoint["train_config"]}
+    for name, value in (changes or {}).items():
+        if name not in stored:
+            raise RunError(f"unknown setting {name!r}")
+        if name not in RESUME_MAY_CHANGE and value != stored[name]:
+            raise RunError(
+                f"a resumed run keeps its stored configuration: {name} is {stored[name]!r} there "
+                f"(only {', '.join(RESUME_MAY_CHANGE)} may change)"
+            )
+    allowed = {k: v for k, v in (changes or {}).items() if k in RESUME_MAY_CHANGE}
     return (
         model_config_from_dict(checkpoint["model_config"]),
-        train_config_from_dict(checkpoint["train_config"]),
+        train_config_from_dict({**checkpoint["train_config"], **allowed}),
     )
-
-
-RESUME_MAY_CHANGE = ("epochs", "threads", "eval_every")
 
 
 def _check_resume(
     checkpoint: dict, model_cfg: ModelConfig, train_cfg: TrainConfig, data: dict
 ) -> None:
     if checkpoint["model_config"] != config_to_dict(model_cfg):
-        raise RunError("--resume must use the run's stored model configuration")
+        raise RunError("a resumed run must use its stored model configuration")
     stored, asked = checkpoint["train_config"], config_to_dict(train_cfg)
     changed = [k for k in asked if k not in RESUME_MAY_CHANGE and stored.get(k) != asked[k]]
     if changed:
-        raise RunError(f"--resume cannot change {', '.join(changed)} of the stored run")
+        raise RunError(f"a resumed run cannot change {', '.join(changed)} of the stored run")
     keys = [k for k in data if k != "path"]
     if any(checkpoint["data"].get(k) != data[k] for k in keys):
-        raise RunError(f"--resume needs the run's data file ({checkpoint['data']['path']})")
+        raise RunError(f"a resumed run needs its data file ({checkpoint['data']['path']})")
 
 
-def _load_splits(data_path: str | os.PathLike) -> tuple[TrajectoryDataset, Batch | None, dict]:
+def _load_splits(
+    data_path: str | os.PathLike,
+) -> tuple[TrajectoryDataset, TrajectoryDataset | None, dict]:
     train_set = TrajectoryDataset(data_path, "train")
     if len(train_set) == 0:
         raise RunError(f"{data_path}: the train split is empty")
     val_set = TrajectoryDataset(data_path, "val")
-    val_batch = val_set.all() if len(val_set) else None
-    return train_set, val_batch, describe_data(os.fspath(data_path), train_set, len(val_set))
+    data = describe_data(os.fspath(data_path), train_set, len(val_set))
+    return train_set, val_set if len(val_set) else None, data
 
 
 def _rewrite_metrics(path: Path, last_epoch: int) -> None:
     """Keep only the metrics lines of epochs <= last_epoch (after an interruption)."""
     if not path.exists():
         return
-    lines = [line for line in path.read_text().splitlines() if line.strip()]
+    with _writing(path, "read"):
+        lines = [line for line in path.read_text().splitlines() if line.strip()]
     kept = [line for line in lines if json.loads(line)["epoch"] <= last_epoch]
     atomic_write_text("".join(line + "\n" for line in kept), path)
 
@@ -356,20 +436,55 @@ def train(
 ) -> TrainResult:
     """Train (or resume) a run in `out_dir`; see the module docstring for the files written.
 
-    Raises RunError for an unusable run directory, FormatError for a bad data file.
-    `step_callback(global_step)` is called before every optimiser step (for tests).
+    Raises RunError for an unusable run directory (or a failed write), FormatError for a bad
+    data file, CheckpointError for an unreadable last.pt. A fresh run that fails before its
+    first checkpoint leaves nothing behind. `step_callback(global_step)` is called before every
+    optimiser step (for tests).
     """
     started = time.perf_counter()
     out = Path(out_dir)
-    prepare_out_dir(out, resume, overwrite)
+    check_out_dir(out, resume, overwrite)
     torch.set_num_threads(train_cfg.threads)
-    train_set, val_batch, data = _load_splits(data_path)
+    train_set, val_set, data = _load_splits(data_path)
     state = build_state(model_cfg, train_cfg, train_set)
     if resume:
         checkpoint = read_checkpoint(out / "last.pt")
         _check_resume(checkpoint, model_cfg, train_cfg, data)
         restore_state(state, checkpoint)
         _rewrite_metrics(out / "metrics.jsonl", state.epoch)
+        created: list[Path] = []
+    else:
+        created = claim_out_dir(out, overwrite)
+    try:
+        final_loss = _train_epochs(
+            state, model_cfg, train_cfg, data, val_set, out, progress, step_callback
+        )
+    except BaseException:
+        if not resume and not (out / "last.pt").exists():
+            _remove_failed_start(out, created)
+        raise
+    return TrainResult(
+        out,
+        state.epoch,
+        state.best_epoch,
+        state.best_score,
+        final_loss,
+        time.perf_counter() - started,
+    )
+
+
+def _train_epochs(
+    state: RunState,
+    model_cfg: ModelConfig,
+    train_cfg: TrainConfig,
+    data: dict,
+    val_set: TrajectoryDataset | None,
+    out: Path,
+    progress: bool,
+    step_callback: Callable[[int], None] | None,
+) -> float | None:
+    """Write config.json, run the remaining epochs with their checkpoints and metrics lines;
+    returns the last epoch's mean training loss (None if no epoch was left to run)."""
     run_config = {
         "model": config_to_dict(model_cfg),
         "train": config_to_dict(train_cfg),
@@ -377,7 +492,6 @@ def train(
         "package_version": __version__,
     }
     atomic_write_text(json.dumps(run_config, indent=2) + "\n", out / "config.json")
-    num_observed = data["num_observed"]
     per_epoch = len(state.loader)
     bar = tqdm(
         total=train_cfg.epochs * per_epoch,
@@ -390,28 +504,19 @@ def train(
     with bar:
         for epoch in range(state.epoch + 1, train_cfg.epochs + 1):
             record = _one_epoch(
-                state, epoch, num_observed, train_cfg, val_batch, data, bar, step_callback
+                state, epoch, data["num_observed"], train_cfg, val_set, bar, step_callback
             )
             final_loss = record["train"]["loss"]
-            with open(out / "metrics.jsonl", "a") as stream:
+            with _writing(out / "metrics.jsonl"), open(out / "metrics.jsonl", "a") as stream:
                 stream.write(json.dumps(record) + "\n")
             if record["best"]:
                 atomic_save(
                     checkpoint_dict(state, model_cfg, train_cfg, data, False), out / "best.pt"
                 )
             atomic_save(checkpoint_dict(state, model_cfg, train_cfg, data, True), out / "last.pt")
-    if not (out / "last.pt").exists():  # zero epochs: keep the initial weights
-        atomic_save(checkpoint_dict(state, model_cfg, train_cfg, data, True), out / "last.pt")
-    if not (out / "best.pt").exists():
+    if not (out / "best.pt").exists():  # no epoch had a validation score
         atomic_save(checkpoint_dict(state, model_cfg, train_cfg, data, False), out / "best.pt")
-    return TrainResult(
-        out,
-        state.epoch,
-        state.best_epoch,
-        state.best_score,
-        final_loss,
-        time.perf_counter() - started,
-    )
+    return final_loss
 
 
 def _one_epoch(
@@ -419,8 +524,7 @@ def _one_epoch(
     epoch: int,
     num_observed: int,
     config: TrainConfig,
-    val_batch: Batch | None,
-    data: dict,
+    val_set: TrajectoryDataset | None,
     bar: tqdm,
     step_callback: Callable[[int], None] | None,
 ) -> dict:
@@ -430,8 +534,8 @@ def _one_epoch(
     state.epoch = epoch
     val, best = None, False
     due = epoch % config.eval_every == 0 or epoch == config.epochs
-    if val_batch is not None and due:
-        val = validation_scores(state.model, val_batch, num_observed, tuple(data["case_names"]))
+    if val_set is not None and due:
+        val = validation_scores(state.model, val_set)
         current = selection_score(val)
         if current is not None and (state.best_score is None or current < state.best_score):
             state.best_score, state.best_epoch, best = current, epoch, True
@@ -440,7 +544,7 @@ def _one_epoch(
             loss=f"{terms['loss']:.3f}",
             val_ade=f"{current:.3f}" if current is not None else "n/a",
         )
-    elif val_batch is None:  # nothing to select on: best.pt follows the last epoch
+    elif val_set is None:  # nothing to select on: best.pt follows the last epoch
         state.best_epoch, best = epoch, True
     return {
         "epoch": epoch,

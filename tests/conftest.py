@@ -1,8 +1,8 @@
 """Shared test fixtures: small random-but-valid trajectory sets, dataset files, prediction files.
 
-Plain functions (`make_meta`, `make_trajectory_set`, `write_predictions_npz`) build the data; the
-fixtures `make_dataset_file` and `dataset_file` wrap them for use with `tmp_path`. Everything is
-seeded, so a test sees the same arrays every run.
+Plain functions (`make_meta`, `make_trajectory_set`, `make_predictions`, `write_predictions_npz`)
+build the data; the fixtures `make_dataset_file` and `dataset_file` wrap them for use with
+`tmp_path`. Everything is seeded, so a test sees the same arrays every run.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from predictor.format import (  # noqa: E402
     TrajectorySet,
     write_dataset,
 )
+from predictor.predictions import Predictions  # noqa: E402
 
 CASE_NAMES = ("major", "minor")
 ROLE_NAMES = ("main_green", "main_brown", "distractor")
@@ -129,42 +130,34 @@ def dataset_file(make_dataset_file: Callable[..., Path]) -> Path:
     return make_dataset_file()
 
 
-def write_predictions_npz(
-    path: Path,
+def make_predictions(
     n: int = 3,
     num_observed: int = 4,
     num_predicted: int = 6,
     num_agents: int = 4,
     with_attention: bool = True,
     seed: int = 0,
-) -> Path:
-    """A predictions file laid out as tools/evaluate.py writes it, from random data."""
+) -> Predictions:
+    """Predictions of n random test scenes: noisy true positions as the predicted means and a
+    random softmax attention (NaN without attention, as for a baseline)."""
     rng = np.random.default_rng(seed)
     data = make_trajectory_set(n, num_observed + num_predicted, num_agents, seed=seed)
-    steps = data.num_steps
-    true_xy = data.states[..., :2]  # (n, T, N, 2)
+    meta = make_meta(num_observed, num_predicted)
     noise = rng.normal(0.0, 0.3, size=(n, num_predicted, num_agents, 2))
-    pred_mean = (true_xy[:, num_observed:] + noise).astype(np.float32)
+    pred_mean = data.states[:, num_observed:, :, :2] + noise
+    shape = (n, data.num_steps - 1, num_agents, num_agents)
     if with_attention:
-        logits = rng.normal(size=(n, steps - 1, num_agents, num_agents))
+        logits = rng.normal(size=shape)
         attention = np.exp(logits) / np.exp(logits).sum(axis=-1, keepdims=True)
     else:
-        attention = np.full((n, steps - 1, num_agents, num_agents), np.nan)
-    np.savez(
-        path,
-        pred_mean=pred_mean,
-        true_xy=true_xy.astype(np.float32),
-        valid=data.valid,
-        case=data.case.astype(np.int64),
-        case_names=np.array(CASE_NAMES),
-        role_names=np.array(ROLE_NAMES),
-        roles=data.roles.astype(np.int64),
-        attention=attention.astype(np.float32),
-        attention_label=data.attention,
-        interaction=data.interaction,
-        num_observed=np.int64(num_observed),
-        dt=np.float64(0.1),
-    )
+        attention = np.full(shape, np.nan)
+    name = "ours" if with_attention else "const_vel"
+    return Predictions.from_split(data, meta, "test", name, pred_mean, attention)
+
+
+def write_predictions_npz(path: Path, **kwargs) -> Path:
+    """A predictions file as tools/evaluate.py writes it (`make_predictions(**kwargs)`)."""
+    make_predictions(**kwargs).save(path)
     return path
 
 

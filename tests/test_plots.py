@@ -2,25 +2,36 @@
 
 from __future__ import annotations
 
+import errno
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import REPO_ROOT, make_meta, make_trajectory_set, tool_env, write_predictions_npz
+from conftest import (
+    REPO_ROOT,
+    make_meta,
+    make_predictions,
+    make_trajectory_set,
+    tool_env,
+    write_predictions_npz,
+)
 from matplotlib.colors import to_hex
 from matplotlib.image import imread
 
 from predictor.plots import (
     DISTRACTOR_COLOR,
+    MAX_PIXELS,
     PlotInputError,
     _runs,
-    load_predictions,
+    new_figure,
     plot_attention,
     plot_predictions,
     plot_samples,
     role_color,
+    save_figure,
 )
 
 PLOT_TOOL = REPO_ROOT / "tools" / "plot.py"
@@ -86,13 +97,31 @@ def test_samples_rejects_empty_split_and_bad_count() -> None:
         plot_samples(make_trajectory_set(0, meta.num_steps), meta)
     with pytest.raises(PlotInputError, match="num_per_case"):
         plot_samples(make_trajectory_set(2, meta.num_steps), meta, num_per_case=0)
+    with pytest.raises(PlotInputError, match=r"num_per_case must be in \[1, 20\]"):
+        plot_samples(make_trajectory_set(2, meta.num_steps), meta, num_per_case=21)
 
 
-def test_prediction_and_attention_figures(tmp_path: Path) -> None:
-    pred = load_predictions(write_predictions_npz(tmp_path / "p.npz", n=3))
+def test_save_figure_bounds_dpi_and_pixels(tmp_path: Path) -> None:
+    fig = new_figure(10.0, 10.0)
+    for dpi in (9, 1201, 100_000):
+        with pytest.raises(PlotInputError, match=r"dpi must be in \[10, 1200\]"):
+            save_figure(fig, tmp_path / "x.png", dpi=dpi)
+    side = int((MAX_PIXELS**0.5) / 1000) + 1  # inches: just over the budget at 1000 dpi
+    with pytest.raises(PlotInputError, match="pixels at dpi 1000"):
+        save_figure(new_figure(side, side), tmp_path / "x.png", dpi=1000)
+    assert not list(tmp_path.iterdir())
+    save_figure(new_figure(2.0, 1.0), tmp_path / "small.png", dpi=50)
+    assert imread(tmp_path / "small.png").shape[:2] == (50, 100)
+
+
+def test_prediction_and_attention_figures() -> None:
+    pred = make_predictions(n=3)
     assert pred.n == 3 and pred.case_names == ("major", "minor")
     fig = plot_predictions(pred, 1)
     assert len(fig.axes[0].collections) >= 2  # predicted dots per role
+    assert fig.axes[0].get_title().startswith("test scene 1 (minor)")
+    subset = pred.select([2, 1])
+    assert plot_predictions(subset, 0).axes[0].get_title().startswith("test scene 2 (major)")
     fig = plot_attention(pred, 2, agent=0, target=1)
     line = next(x for x in fig.axes[0].get_lines() if x.get_label().startswith("attention on"))
     np.testing.assert_allclose(line.get_ydata(), pred.attention[2, :, 0, 1])
@@ -101,20 +130,6 @@ def test_prediction_and_attention_figures(tmp_path: Path) -> None:
         plot_attention(pred, 3, agent=0, target=1)
     with pytest.raises(PlotInputError, match="target 4 out of range"):
         plot_attention(pred, 0, agent=0, target=4)
-
-
-def test_load_predictions_rejects_bad_files(tmp_path: Path) -> None:
-    good = write_predictions_npz(tmp_path / "p.npz")
-    arrays = dict(np.load(good))
-    np.savez(tmp_path / "missing.npz", **{k: v for k, v in arrays.items() if k != "roles"})
-    with pytest.raises(PlotInputError, match=r"missing arrays \['roles'\]"):
-        load_predictions(tmp_path / "missing.npz")
-    np.savez(tmp_path / "shape.npz", **{**arrays, "valid": arrays["valid"][:, :-1]})
-    with pytest.raises(PlotInputError, match="valid has shape"):
-        load_predictions(tmp_path / "shape.npz")
-    (tmp_path / "text.npz").write_text("nope")
-    with pytest.raises(PlotInputError, match="not an .npz file"):
-        load_predictions(tmp_path / "text.npz")
 
 
 def test_plots_do_not_touch_pyplot() -> None:
@@ -154,8 +169,14 @@ def test_plot_tool_writes_all_three_figures(tmp_path: Path, dataset_file: Path) 
         assert result.returncode == 0, result.stderr
         assert result.stdout.strip().splitlines()[-1] == str(out)
         _assert_png(out)
+    before = (tmp_path / "pred.png").read_bytes()
     result = _run_plot("predictions", pred, "--index", "2", "--out", tmp_path / "pred.png")
-    assert result.returncode == 0, result.stderr  # plots are replaced without --overwrite
+    _assert_usage_error(result, "already exists; pass --overwrite")
+    assert (tmp_path / "pred.png").read_bytes() == before
+    args = ("predictions", pred, "--index", "2", "--out", tmp_path / "pred.png", "--overwrite")
+    result = _run_plot(*args)
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "pred.png").read_bytes() != before
     names = sorted(p.name for p in tmp_path.iterdir())
     assert names == sorted(["attn.png", "data.h5", "pred.npz", "pred.png", "samples.png"])
 
@@ -163,14 +184,20 @@ def test_plot_tool_writes_all_three_figures(tmp_path: Path, dataset_file: Path) 
 def test_plot_tool_bad_input_is_one_line_exit_2(tmp_path: Path, dataset_file: Path) -> None:
     pred = write_predictions_npz(tmp_path / "pred.npz", n=3)
     no_attn = write_predictions_npz(tmp_path / "const_vel.npz", with_attention=False)
+    legacy = tmp_path / "legacy.npz"  # the untagged layout of version 1
+    np.savez(legacy, **{k: v for k, v in np.load(pred).items() if k not in ("format", "version")})
     out = tmp_path / "out.png"
     cases = [
         (["predictions", pred, "--index", "3"], "scene index 3 out of range"),
         (["attention", pred, "--agent", "1", "--target", "1"], "agent and target must differ"),
         (["attention", no_attn], "no attention"),
         (["predictions", tmp_path / "absent.npz"], "does not exist"),
+        (["predictions", legacy], "no format tag"),
         (["samples", pred], "not an HDF5 file"),
         (["samples", dataset_file, "--split", "dev"], "invalid choice"),
+        (["samples", dataset_file, "--num", "1000"], "num_per_case must be in [1, 20]"),
+        (["predictions", pred, "--dpi", "100000"], "--dpi must be in [10, 1200]"),
+        (["predictions", pred, "--dpi", "0"], "--dpi must be in [10, 1200]"),
     ]
     for args, fragment in cases:
         _assert_usage_error(_run_plot(*args, "--out", out), fragment)
@@ -181,4 +208,25 @@ def test_plot_tool_bad_input_is_one_line_exit_2(tmp_path: Path, dataset_file: Pa
     _assert_usage_error(
         _run_plot("samples", dataset_file, "--out", tmp_path / "no" / "x.png"), "does not exist"
     )
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["const_vel.npz", "data.h5", "pred.npz"]
+    names = ["const_vel.npz", "data.h5", "legacy.npz", "pred.npz"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == names
+
+
+def test_plot_tool_unwritable_output_is_one_line(tmp_path: Path, capsys, monkeypatch) -> None:
+    """A read-only output directory, simulated (root ignores permission bits): the rename of the
+    finished temporary file raises EACCES. One line, exit 2, nothing left behind."""
+    sys.path.insert(0, str(REPO_ROOT / "tools"))
+    import plot
+
+    pred = write_predictions_npz(tmp_path / "pred.npz")
+
+    def refuse(src, dst) -> None:
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(dst))
+
+    monkeypatch.setattr(os, "replace", refuse)
+    out = tmp_path / "pred.png"
+    with pytest.raises(SystemExit) as exit_info:
+        plot.main(["predictions", str(pred), "--out", str(out)])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err == f"error: cannot write {out}: Permission denied\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pred.npz"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import importlib.util
 import json
 import os
@@ -16,6 +17,12 @@ from test_training import write_braking_dataset
 
 TINY = ["--embed-dim", "8", "--edge-hidden", "8", "--node-hidden", "12", "--attn-dim", "4"]
 NPZ_KEYS = {
+    "format",
+    "version",
+    "predictor",
+    "scenario",
+    "split",
+    "scene",
     "pred_mean",
     "true_xy",
     "valid",
@@ -166,9 +173,29 @@ def test_closed_stdout_ends_quietly(smoke):
             "invalid choice",
         ),
         ("train.py", ["--data", "{data}", "--out", "{tmp}/r", "--epochs", "-1"], "epochs"),
+        (
+            "train.py",
+            ["--data", "{data}", "--out", "{tmp}/r", "--epochs", "0"],
+            "TrainConfig.epochs must be >= 1, got 0",
+        ),
+        (
+            "train.py",
+            ["--data", "{data}", "--out", "{tmp}", "--resume"],
+            "it has no last.pt",
+        ),
+        (
+            "train.py",
+            ["--data", "{data}", "--out", "{run}", "--resume", "--lr", "0.5"],
+            "keeps its stored configuration: lr is 0.001 there",
+        ),
+        (
+            "evaluate.py",
+            ["--run", "{run}", "--data", "{other}", "--out", "{tmp}/e.json"],
+            "was trained on data with dt 0.2, num_predicted 7, but",
+        ),
         ("train.py", ["--data", "{foreign}", "--out", "{tmp}/r"], "not an HDF5 file"),
         ("train.py", ["--data", "{data}", "--out", "{run}"], "not empty"),
-        ("train.py", ["--data", "{data}", "--out", "{tmp}/r", "--resume"], "no such checkpoint"),
+        ("train.py", ["--data", "{data}", "--out", "{tmp}/r", "--resume"], "does not exist"),
         ("evaluate.py", ["--run", "{run}", "--data", "{missing}"], "does not exist"),
         (
             "evaluate.py",
@@ -188,7 +215,10 @@ def test_closed_stdout_ends_quietly(smoke):
 def test_bad_input_is_one_line_and_exit_2(smoke, tmp_path, capsys, tool, args, message):
     foreign = tmp_path / "foreign.h5"
     foreign.write_text("not a dataset")
+    other = tmp_path / "other_dt.h5"  # same scenario, another dt and horizon
+    write_other_dataset(other)
     names = {
+        "other": other,
         "missing": tmp_path / "missing.h5",
         "tmp": tmp_path,
         "data": smoke["data"],
@@ -217,3 +247,127 @@ def test_checkpoint_missing_a_config_field_is_rejected(smoke, tmp_path: Path):
     torch.save(checkpoint, old)
     with pytest.raises(CheckpointError, match="lacks field"):
         load_model(old)
+
+
+def write_other_dataset(path: Path) -> Path:
+    """The smoke data's scenario with dt 0.1 s and 9 predicted steps."""
+    import h5py
+
+    write_braking_dataset(path, counts=(2, 2, 2), steps=14)
+    with h5py.File(path, "r+") as file:
+        file.attrs["dt"] = 0.1
+    return path
+
+
+def test_evaluate_refuses_data_of_another_scenario(smoke, tmp_path, capsys):
+    import h5py
+
+    data = tmp_path / "renamed.h5"
+    data.write_bytes(Path(smoke["data"]).read_bytes())
+    with h5py.File(data, "r+") as file:
+        file.attrs["scenario"] = "double_merge"
+    with pytest.raises(SystemExit) as exit_info:
+        argv = ["--run", str(smoke["run"]), "--data", str(data), "--out", str(tmp_path / "e.json")]
+        load_tool("evaluate.py").main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert not (tmp_path / "e.json").exists()
+    assert err == (
+        f"error: {smoke['run'] / 'best.pt'} was trained on data with scenario 'braking_test', "
+        f"but {data} has scenario 'double_merge'\n"
+    )
+
+
+def _refuse_writes_in(monkeypatch, directory: Path) -> None:
+    """Simulate a read-only `directory` (root ignores permission bits): renaming a finished
+    temporary file into it raises EACCES, as on a read-only mount."""
+    real = os.replace
+
+    def replace(src, dst) -> None:
+        if Path(dst).parent == directory:
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(dst))
+        real(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace)
+
+
+@pytest.mark.parametrize("target", ["--out", "--save-predictions"])
+def test_evaluate_unwritable_output_is_one_line(smoke, tmp_path, capsys, monkeypatch, target):
+    read_only = tmp_path / "ro"
+    read_only.mkdir()
+    _refuse_writes_in(monkeypatch, read_only)
+    outputs = {"--out": tmp_path / "e.json", "--save-predictions": tmp_path / "p.npz"}
+    outputs[target] = read_only / ("e.json" if target == "--out" else "p.npz")
+    argv = ["--baseline", "const_vel", "--data", str(smoke["data"])]
+    for flag, path in outputs.items():
+        argv += [flag, str(path)]
+    with pytest.raises(SystemExit) as exit_info:
+        load_tool("evaluate.py").main(argv)
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err == f"error: cannot write {outputs[target]}: Permission denied\n"
+    assert not list(read_only.iterdir())
+    if target == "--save-predictions":  # the JSON is written last: nothing was written
+        assert not (tmp_path / "e.json").exists()
+
+
+def test_train_unwritable_run_directory_is_one_line(smoke, tmp_path, capsys, monkeypatch):
+    run = tmp_path / "run"
+    _refuse_writes_in(monkeypatch, run)
+    argv = ["--data", str(smoke["data"]), "--out", str(run), "--epochs", "1", "--no-progress"]
+    with pytest.raises(SystemExit) as exit_info:
+        load_tool("train.py").main([*argv, *TINY])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert err == f"error: cannot write {run / 'config.json'}: Permission denied\n"
+    assert not run.exists()
+
+
+def test_train_interrupted_in_the_first_epoch_keeps_nothing(smoke, tmp_path, capsys, monkeypatch):
+    import predictor.training
+
+    def interrupt(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(predictor.training, "train_step", interrupt)
+    run = tmp_path / "run"
+    argv = ["--data", str(smoke["data"]), "--out", str(run), "--no-progress", *TINY]
+    with pytest.raises(SystemExit) as exit_info:
+        load_tool("train.py").main(argv)
+    assert exit_info.value.code == 130
+    err = capsys.readouterr().err
+    assert err == f"error: interrupted before the first epoch ended; nothing was kept in {run}\n"
+    assert not run.exists()
+
+
+def test_evaluation_library_matches_the_tool_and_an_independent_ade(smoke, tmp_path):
+    from predictor.evaluation import evaluate_baseline, evaluate_run
+    from predictor.format import read_split
+    from predictor.predictions import load_predictions
+
+    evaluation = evaluate_run(smoke["run"], smoke["data"])
+    assert evaluation.to_dict() == json.loads((smoke["run"] / "eval.json").read_text())
+    evaluation.save_predictions(tmp_path / "two.npz", rows=[3, 0])
+    two = load_predictions(tmp_path / "two.npz")
+    assert two.scene.tolist() == [3, 0] and two.predictor == "ours"
+    np.testing.assert_array_equal(two.pred_mean, evaluation.predictions.pred_mean[[3, 0]])
+    # constant velocity, all agents, by hand: mean error over predicted, present agent-steps
+    baseline = evaluate_baseline("const_vel", smoke["data"], "test")
+    xy = read_split(smoke["data"], "test").states[..., :2].astype(np.float64)  # (n, T, N, 2)
+    valid = read_split(smoke["data"], "test").valid
+    pred = xy[:, 4:5] + (xy[:, 4:5] - xy[:, 3:4]) * np.arange(1, 8)[None, :, None, None]
+    keep = valid[:, 5:] & valid[:, 4:5] & valid[:, 3:4]
+    error = np.linalg.norm(pred - xy[:, 5:], axis=-1)[keep]
+    assert baseline.scores["all_agents"]["overall"]["ade"] == pytest.approx(error.mean(), rel=1e-5)
+    assert set(baseline.to_dict()) == {
+        "data",
+        "split",
+        "scenes",
+        "num_observed",
+        "num_predicted",
+        "dt",
+        "headline",
+        "predictor",
+        "main_agents",
+        "all_agents",
+        "attention_accuracy",
+    }

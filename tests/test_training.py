@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +15,7 @@ from predictor.config import make_configs
 from predictor.data import TrajectoryDataset, collate_batch
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 from predictor.model import SmoothAttentionPredictor
-from predictor.training import RunError, train, train_step
+from predictor.training import RunError, resume_configs, train, train_step
 
 torch.set_num_threads(1)
 
@@ -174,8 +176,97 @@ def test_run_directory_rules(braking_file: Path, tmp_path: Path):
     with pytest.raises(RunError, match="not empty"):
         train(braking_file, model_cfg, train_cfg, run, progress=False)
     train(braking_file, model_cfg, train_cfg, run, overwrite=True, progress=False)
-    with pytest.raises(RunError, match="nothing to resume"):
+    with pytest.raises(RunError, match="nothing to resume: .* does not exist"):
         train(braking_file, model_cfg, train_cfg, tmp_path / "new", resume=True, progress=False)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(RunError, match="nothing to resume in .*empty: it has no last.pt"):
+        train(braking_file, model_cfg, train_cfg, tmp_path / "empty", resume=True, progress=False)
     changed = make_configs("ours", TINY_MODEL, epochs=1, batch_size=3, seed=0, lr=1e-2)
     with pytest.raises(RunError, match="lr"):
         train(braking_file, changed[0], changed[1], run, resume=True, progress=False)
+
+
+def test_zero_epochs_is_refused():
+    with pytest.raises(ValueError, match="TrainConfig.epochs must be >= 1, got 0"):
+        tiny_configs(epochs=0)
+
+
+def test_resume_configs_apply_only_the_allowed_changes(braking_file: Path, tmp_path: Path):
+    model_cfg, train_cfg = tiny_configs(epochs=1)
+    run = tmp_path / "run"
+    train(braking_file, model_cfg, train_cfg, run, progress=False)
+    assert resume_configs(run) == (model_cfg, train_cfg)
+    same = {"lr": train_cfg.lr, "embed_dim": 8, "variant": "ours", "seed": 0}
+    resumed_model, resumed_train = resume_configs(run, {"epochs": 4, "eval_every": 2, **same})
+    assert resumed_model == model_cfg
+    assert (resumed_train.epochs, resumed_train.eval_every, resumed_train.lr) == (4, 2, 3e-3)
+    with pytest.raises(RunError, match="lr is 0.003 there .only epochs, threads, eval_every"):
+        resume_configs(run, {"lr": 0.1})
+    with pytest.raises(RunError, match="embed_dim is 8 there"):
+        resume_configs(run, {"embed_dim": 16})
+    with pytest.raises(RunError, match="unknown setting 'colour'"):
+        resume_configs(run, {"colour": 1})
+    with pytest.raises(ValueError, match="epochs must be >= 1"):
+        resume_configs(run, {"epochs": 0})
+    with pytest.raises(RunError, match="nothing to resume"):
+        resume_configs(tmp_path / "absent", {})
+
+
+def _interrupt_first_step(step: int) -> None:
+    raise KeyboardInterrupt
+
+
+def test_interrupted_start_leaves_nothing(braking_file: Path, tmp_path: Path):
+    """Interrupted before the first checkpoint: the files and directories the run created are
+    removed, a directory that existed before is kept (empty), and a plain re-run works."""
+    model_cfg, train_cfg = tiny_configs(epochs=1)
+    nested = tmp_path / "a" / "b" / "run"
+    with pytest.raises(KeyboardInterrupt):
+        train(
+            braking_file,
+            model_cfg,
+            train_cfg,
+            nested,
+            progress=False,
+            step_callback=_interrupt_first_step,
+        )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["braking.h5"]
+    existing = tmp_path / "existing"
+    existing.mkdir()
+    with pytest.raises(KeyboardInterrupt):
+        train(
+            braking_file,
+            model_cfg,
+            train_cfg,
+            existing,
+            progress=False,
+            step_callback=_interrupt_first_step,
+        )
+    assert existing.is_dir() and not list(existing.iterdir())
+    assert train(braking_file, model_cfg, train_cfg, existing, progress=False).epochs == 1
+
+
+def test_bad_data_touches_no_directory(tmp_path: Path):
+    data = write_braking_dataset(tmp_path / "no_train.h5", counts=(0, 2, 2))
+    model_cfg, train_cfg = tiny_configs(epochs=1)
+    with pytest.raises(RunError, match="the train split is empty"):
+        train(data, model_cfg, train_cfg, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
+
+
+def test_unwritable_run_directory_is_one_clear_error(
+    braking_file: Path, tmp_path: Path, monkeypatch
+):
+    """Simulated read-only directory (root ignores permission bits): renaming a finished
+    temporary file raises EACCES. A RunError names the file; the run leaves nothing."""
+
+    def refuse(src, dst) -> None:
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(dst))
+
+    monkeypatch.setattr(os, "replace", refuse)
+    model_cfg, train_cfg = tiny_configs(epochs=1)
+    run = tmp_path / "run"
+    with pytest.raises(RunError) as info:
+        train(braking_file, model_cfg, train_cfg, run, progress=False)
+    assert str(info.value) == f"cannot write {run / 'config.json'}: Permission denied"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["braking.h5"]

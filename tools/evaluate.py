@@ -8,7 +8,8 @@ Predicts every scene of the split (default test) from its observed steps, feedin
 of each predicted Gaussian, and reports ADE/FDE [m] per case and overall for the main agents
 (the headline: the first two agent slots) and for all agents, plus the attention accuracy
 against the oracle labels. Writes JSON (default RUN/eval.json) and, with --save-predictions,
-an .npz for tools/plot.py.
+the predictions file (.npz, docs/dataset_format.md) for tools/plot.py. A run is evaluated only
+on data of the scenario, dt and horizons it was trained on.
 """
 
 from __future__ import annotations
@@ -21,17 +22,15 @@ import torch
 
 from pipeline.cli import ArgumentParser, atomic_output, check_output, fail, require_file, run_main
 from predictor.baselines import BASELINES
-from predictor.data import TrajectoryDataset
 from predictor.evaluation import (
+    CHECKPOINTS,
     CheckpointError,
-    load_model,
-    predict_const_vel,
-    predict_model,
-    save_predictions,
-    score,
+    Evaluation,
+    EvaluationError,
+    evaluate_baseline,
+    evaluate_run,
 )
 from predictor.format import FormatError
-from predictor.metrics import headline
 
 
 def parse_args(argv: list[str] | None = None):
@@ -49,7 +48,7 @@ def parse_args(argv: list[str] | None = None):
     parser.add_argument(
         "--checkpoint",
         default="best",
-        choices=("best", "last"),
+        choices=CHECKPOINTS,
         help="which checkpoint of --run (default best)",
     )
     parser.add_argument(
@@ -110,33 +109,14 @@ def _row(group: dict, name: str) -> dict:
     return group["overall"] if name == "overall" else group["cases"][name]
 
 
-def evaluate(args, dataset: TrajectoryDataset) -> tuple[dict, object]:
-    """Predict and score; returns (JSON-ready result, predictions)."""
-    meta, batch = dataset.meta, dataset.all()
-    info: dict = {
-        "data": str(Path(args.data).resolve()),
-        "split": args.split,
-        "scenes": batch.batch_size,
-        "num_observed": meta.num_observed,
-        "num_predicted": meta.num_predicted,
-        "dt": meta.dt,
-        "headline": "main_agents",
-    }
-    if args.baseline:
-        predictions = predict_const_vel(batch, meta.num_observed)
-        info.update(predictor=args.baseline)
-    else:
-        model, checkpoint = load_model(Path(args.run) / f"{args.checkpoint}.pt")
-        predictions = predict_model(model, batch, meta.num_observed, args.batch_size)
-        info.update(
-            predictor=checkpoint["train_config"]["variant"],
-            run=str(args.run),
-            checkpoint=f"{args.checkpoint}.pt",
-            epoch=checkpoint["epoch"],
-            train_data=checkpoint["data"]["path"],
-        )
-    result = {**info, **score(predictions, batch, meta.num_observed, meta.case_names)}
-    return result, predictions
+def evaluate(args) -> Evaluation:
+    """The evaluation the arguments ask for; exits 2 with one line on bad input."""
+    try:
+        if args.baseline:
+            return evaluate_baseline(args.baseline, args.data, args.split)
+        return evaluate_run(args.run, args.data, args.split, args.checkpoint, args.batch_size)
+    except (CheckpointError, EvaluationError, FormatError, OSError) as err:
+        fail(str(err))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -144,33 +124,19 @@ def main(argv: list[str] | None = None) -> None:
     json_out, npz_out = check_args(args)
     torch.set_num_threads(args.threads)
     started = time.perf_counter()
-    try:
-        dataset = TrajectoryDataset(args.data, args.split)
-        if len(dataset) == 0:
-            fail(f"{args.data}: the {args.split} split is empty")
-        result, predictions = evaluate(args, dataset)
-    except (CheckpointError, FormatError, ValueError, OSError) as err:
-        fail(str(err))
-    meta = dataset.meta
-    print(format_table(result, meta.case_names))
+    evaluation = evaluate(args)
+    result = evaluation.to_dict()
+    print(format_table(result, evaluation.meta.case_names))
+    if npz_out is not None:
+        with atomic_output(npz_out) as temp:
+            evaluation.save_predictions(temp)
     if json_out is not None:
         with atomic_output(json_out) as temp:
             temp.write_text(json.dumps(result, indent=2) + "\n")
-    if npz_out is not None:
-        with atomic_output(npz_out) as temp:
-            save_predictions(
-                temp,
-                predictions,
-                dataset.all(),
-                meta.num_observed,
-                meta.dt,
-                meta.case_names,
-                meta.role_names,
-            )
     written = ", ".join(str(p) for p in (json_out, npz_out) if p is not None) or "nothing written"
     print(
-        f"{result['predictor']} on {result['scenes']} {args.split} scenes in "
-        f"{time.perf_counter() - started:.1f} s: {headline(result)} ({written})"
+        f"{evaluation.predictor} on {evaluation.scenes} {args.split} scenes in "
+        f"{time.perf_counter() - started:.1f} s: {evaluation.headline()} ({written})"
     )
 
 

@@ -4,25 +4,30 @@
     python tools/plot.py predictions PRED.npz --index 0 --out pred.png
     python tools/plot.py attention PRED.npz --index 0 --agent 0 --target 1 --out attn.png
 
-FILE is a trajectory dataset (schema v1); PRED.npz is written by tools/evaluate.py. The output
-format follows the suffix of --out (.png, .pdf, .svg); an existing output is replaced. The output
-is written atomically and its path printed at the end.
+FILE is a trajectory dataset (schema v1); PRED.npz is a predictions file written by
+tools/evaluate.py --save-predictions. The output format follows the suffix of --out (.png, .pdf,
+.svg); an existing output is replaced only with --overwrite. --dpi is limited to [10, 1200] and
+the image to 100 million pixels. The output is written atomically and its path printed at the
+end.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from pipeline.cli import ArgumentParser, atomic_output, check_output, fail, require_file
+from pipeline.cli import ArgumentParser, atomic_output, check_output, fail, require_file, run_main
 from predictor.format import SPLITS, FormatError, read_meta, read_split
 from predictor.plots import (
+    MAX_DPI,
+    MAX_SAMPLES_PER_CASE,
+    MIN_DPI,
     PlotInputError,
-    load_predictions,
     plot_attention,
     plot_predictions,
     plot_samples,
     save_figure,
 )
+from predictor.predictions import PredictionsError, load_predictions
 
 
 def _build_parser() -> ArgumentParser:
@@ -31,7 +36,12 @@ def _build_parser() -> ArgumentParser:
     samples = commands.add_parser("samples", help="sample trajectories, one column per case")
     samples.add_argument("file", help="trajectory dataset (.h5)")
     samples.add_argument("--split", choices=SPLITS, default="test", help="split to draw from")
-    samples.add_argument("--num", type=int, default=4, help="trajectories per case (first ones)")
+    samples.add_argument(
+        "--num",
+        type=int,
+        default=4,
+        help=f"trajectories per case, the first ones (1 to {MAX_SAMPLES_PER_CASE})",
+    )
     predictions = commands.add_parser("predictions", help="predicted vs true trajectories")
     predictions.add_argument("file", help="predictions file (.npz) from tools/evaluate.py")
     predictions.add_argument("--index", type=int, default=0, help="scene index in the file")
@@ -42,7 +52,13 @@ def _build_parser() -> ArgumentParser:
     attention.add_argument("--target", type=int, default=1, help="attended agent")
     for sub in (samples, predictions, attention):
         sub.add_argument("--out", required=True, help="output image (.png, .pdf, .svg)")
-        sub.add_argument("--dpi", type=int, default=120, help="resolution of raster output")
+        sub.add_argument(
+            "--dpi",
+            type=int,
+            default=120,
+            help=f"resolution of raster output ({MIN_DPI} to {MAX_DPI}, default 120)",
+        )
+        sub.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     return parser
 
 
@@ -59,20 +75,22 @@ def _make_figure(args: argparse.Namespace):
 def main(argv: list[str] | None = None) -> None:
     args = _build_parser().parse_args(argv)
     require_file(args.file)
-    out = check_output(args.out, overwrite=True)  # plots are replaced silently
-    if args.dpi < 1:
-        fail(f"--dpi must be positive, got {args.dpi}")
+    out = check_output(args.out, args.overwrite)
+    if not MIN_DPI <= args.dpi <= MAX_DPI:
+        fail(f"--dpi must be in [{MIN_DPI}, {MAX_DPI}], got {args.dpi}")
     try:
         fig = _make_figure(args)
-    except (FormatError, PlotInputError) as err:
+    except (FormatError, PlotInputError, PredictionsError) as err:
         fail(str(err))
     try:
         with atomic_output(out) as temp:
             save_figure(fig, temp, dpi=args.dpi)
+    except PlotInputError as err:
+        fail(str(err))
     except ValueError as err:  # e.g. an unsupported output suffix
         fail(f"cannot write {out}: {err}")
     print(out)
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

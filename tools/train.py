@@ -4,18 +4,19 @@ Example: python tools/train.py --data data/double_merge.h5 --variant ours --seed
 
 Writes config.json, metrics.jsonl, last.pt and best.pt (lowest validation ADE of the main agents)
 to --out. An interrupted run continues bit-identically with --resume (only --epochs, --threads
-and --eval-every may change then). Variants: ours, nonsmooth, s_attn, average, correct.
+and --eval-every may change then). A run that fails or is interrupted before its first epoch
+ends leaves nothing behind. Variants: ours, nonsmooth, s_attn, average, correct.
 """
 
 from __future__ import annotations
 
-import sys
+from pathlib import Path
 
-from pipeline.cli import ArgumentParser, fail, require_file
+from pipeline.cli import ArgumentParser, fail, require_file, run_main
 from predictor.config import VARIANTS, ModelConfig, TrainConfig, make_configs
 from predictor.evaluation import CheckpointError
 from predictor.format import FormatError
-from predictor.training import RunError, stored_configs, train
+from predictor.training import RESUME_MAY_CHANGE, RunError, resume_configs, train
 
 MODEL_FLAGS = (
     "embed_dim",
@@ -51,7 +52,12 @@ def parse_args(argv: list[str] | None = None):
         "--variant", default=None, choices=sorted(VARIANTS), help="model variant (default ours)"
     )
     parser.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
-    parser.add_argument("--resume", action="store_true", help="continue the run in --out")
+    may_change = ", ".join(f"--{name.replace('_', '-')}" for name in RESUME_MAY_CHANGE)
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help=f"continue the run in --out (only {may_change} may change)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="start over in a non-empty --out")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     defaults_t, defaults_m = TrainConfig(), ModelConfig()
@@ -81,26 +87,19 @@ def given(args, names: tuple[str, ...]) -> dict:
 
 
 def configs_for(args) -> tuple[ModelConfig, TrainConfig]:
-    """Configs of a new run, or the stored ones (with allowed changes) for --resume."""
+    """Configs of a new run, or the stored ones (with the allowed changes) for --resume."""
     if not args.resume:
         train_values = {
             "seed": args.seed if args.seed is not None else 0,
             **given(args, TRAIN_FLAGS),
         }
         return make_configs(args.variant or "ours", given(args, MODEL_FLAGS), **train_values)
-    model_cfg, train_cfg = stored_configs(args.out)
-    fixed = {
+    changes = {
         **given(args, MODEL_FLAGS),
         **given(args, TRAIN_FLAGS),
-        **{k: v for k, v in (("variant", args.variant), ("seed", args.seed)) if v is not None},
+        **given(args, ("variant", "seed")),
     }
-    allowed = {"epochs", "threads", "eval_every"}
-    for name, value in fixed.items():
-        stored = getattr(model_cfg, name, getattr(train_cfg, name, None))
-        if name not in allowed and value != stored:
-            fail(f"--resume continues with the stored configuration; {name} is {stored!r} there")
-    changes = {k: v for k, v in fixed.items() if k in allowed}
-    return model_cfg, TrainConfig(**{**train_cfg.__dict__, **changes})
+    return resume_configs(args.out, changes)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -118,7 +117,7 @@ def main(argv: list[str] | None = None) -> None:
             progress=not args.no_progress,
         )
     except KeyboardInterrupt:
-        fail(f"interrupted; continue with --resume --out {args.out}", code=130)
+        fail(_interrupted(Path(args.out)), code=130)
     except FloatingPointError as err:
         fail(f"training diverged: {err}", code=1)
     except (CheckpointError, FormatError, RunError, ValueError, OSError) as err:
@@ -126,5 +125,11 @@ def main(argv: list[str] | None = None) -> None:
     print(result.summary(train_cfg.variant))
 
 
+def _interrupted(out: Path) -> str:
+    if (out / "last.pt").is_file():
+        return f"interrupted; continue with --resume --out {out}"
+    return f"interrupted before the first epoch ended; nothing was kept in {out}"
+
+
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    run_main(main)
