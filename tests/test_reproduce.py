@@ -1,12 +1,14 @@
-"""tools/reproduce.py and tools/_report.py: a --quick smoke run (twice: the second reuses the
-cache) in subprocesses, usage errors, and the statistics on hand-made numbers."""
+"""tools/reproduce.py and pipeline.reproduction: a --quick smoke run (twice: the second reuses
+the cache) in subprocesses, interrupts, usage errors, where the report goes, and the planning.
+The report's statistics are tested on hand-made numbers in test_report.py."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import math
+import os
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -17,8 +19,10 @@ import pytest
 from conftest import REPO_ROOT, tool_env
 from scipy import stats
 
+from pipeline import reproduction
+from predictor.evaluation import read_checkpoint
+
 sys.path.insert(0, str(REPO_ROOT / "tools"))
-import _report  # noqa: E402
 import reproduce  # noqa: E402
 
 SETTINGS = ("dm_r0.3", "dm_r0.8", "dm_3+10", "dm_15+30", "dm_30+100", "hc_stop", "hc_go")
@@ -49,7 +53,7 @@ def quick(tmp_path_factory) -> dict:
     one run's eval.json."""
     root = tmp_path_factory.mktemp("reproduce")
     cache, results = root / "cache", root / "report" / "RESULTS.md"
-    args = ("--quick", "--out-dir", str(cache), "--results", str(results))
+    args = ("--quick", "--out-dir", str(cache), "--report", str(results))
     first, first_s = run_reproduce(*args)
     assert first.returncode == 0, first.stderr[-2000:]
     markdown_first = results.read_text()
@@ -212,6 +216,7 @@ def test_existing_report_needs_overwrite(quick):
         (["--jobs", "0"], "--jobs must be at least 1"),
         (["--epochs", "x"], "invalid int value"),
         (["--results", "report.txt"], "must name a .md file"),
+        (["--report", "report.txt"], "must name a .md file"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, args, message):
@@ -223,19 +228,132 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, args, message):
     assert not (tmp_path / "c").exists()
 
 
+def test_default_report_goes_under_the_output_directory(tmp_path, monkeypatch):
+    """A fresh clone holds docs/RESULTS.md; the README's command must not collide with it."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "RESULTS.md").write_text("published\n")
+    args = reproduce.parse_args(["--settings", "main", "--seeds", "5"])
+    out_dir, report = reproduce.output_paths(args)
+    assert (out_dir, report) == (Path("outputs/reproduce"), Path("outputs/reproduce/RESULTS.md"))
+    args = reproduce.parse_args(["--quick", "--out-dir", "elsewhere"])
+    assert reproduce.output_paths(args)[1] == Path("elsewhere/RESULTS.md")
+    args = reproduce.parse_args(["--report", "docs/RESULTS.md", "--overwrite"])
+    assert reproduce.output_paths(args)[1] == Path("docs/RESULTS.md")
+
+
+def test_publishing_over_docs_needs_overwrite(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "RESULTS.md").write_text("published\n")
+    with pytest.raises(SystemExit) as exit_:
+        reproduce.main(["--settings", "main", "--report", "docs/RESULTS.md"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "docs/RESULTS.md already exists; pass --overwrite" in err
+    assert not (tmp_path / "outputs").exists()
+
+
+def wait_for_training(cache: Path, process: subprocess.Popen, timeout: float = 300.0) -> None:
+    """Return once a run being trained has finished an epoch (its metrics.jsonl has a line)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if any(m.read_text().strip() for m in cache.glob("runs/*/ours/*/metrics.jsonl")):
+            return
+        if process.poll() is not None:
+            pytest.fail(f"reproduce.py ended early: {process.stderr.read()[-2000:]}")
+        time.sleep(0.05)
+    process.kill()
+    pytest.fail("no epoch finished in time")
+
+
+@pytest.mark.parametrize(
+    "how, jobs",
+    [("ctrl-c to the process group", 2), ("sigterm to the parent", 1)],
+)
+def test_interrupt_stops_at_a_safe_point_and_the_rerun_resumes(tmp_path, how, jobs):
+    cache, report = tmp_path / "cache", tmp_path / "report" / "RESULTS.md"
+    args = ["--quick", "--settings", "hc_go", "--variants", "ours", "--seeds", str(jobs)]
+    args += [
+        "--epochs",
+        "30",
+        "--jobs",
+        str(jobs),
+        "--out-dir",
+        str(cache),
+        "--report",
+        str(report),
+    ]
+    process = subprocess.Popen(
+        [sys.executable, str(REPO_ROOT / "tools" / "reproduce.py"), *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=tool_env(),
+        start_new_session=True,  # its own process group, as a terminal would have it
+    )
+    wait_for_training(cache, process)
+    if how.startswith("ctrl-c"):
+        os.killpg(process.pid, signal.SIGINT)  # the parent and its workers, as a terminal does
+    else:
+        process.send_signal(signal.SIGTERM)  # the parent alone
+    out, err = process.communicate(timeout=300)
+    assert process.returncode == 130, err[-2000:]
+    assert err.splitlines()[-1] == (
+        "error: interrupted; finished runs are cached: run the same command again to resume"
+    )
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err and out == ""
+    assert [p for p in tmp_path.rglob("*") if ".tmp" in p.name] == []
+    assert list(cache.rglob("eval.json")) == [] and not report.exists()
+    assert not (cache / "invocations.jsonl").exists()
+    checkpoints = list(cache.glob("runs/*/ours/*/last.pt"))
+    assert checkpoints  # at least the run that finished an epoch
+    for last in checkpoints:  # each stopped between epochs: its files agree
+        lines = (last.parent / "metrics.jsonl").read_text().splitlines()
+        epochs = [json.loads(line)["epoch"] for line in lines]
+        assert 1 <= len(epochs) < 30 and epochs == list(range(1, len(epochs) + 1))
+        assert read_checkpoint(last)["epoch"] == epochs[-1]
+    resumed, _ = run_reproduce(*args)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    trained, again = (
+        int(n) for n in re.search(r"(\d+) trained, (\d+) resumed", resumed.stdout).groups()
+    )
+    assert again == len(checkpoints) and trained + again == jobs
+    for result in cache.rglob("eval.json"):
+        assert json.loads(result.read_text())["epochs"] == 30
+
+
+def test_cached_results_are_checked_before_use(tmp_path):
+    setting = reproduction.SETTING_BY_NAME["hc_go"]
+    protocol = reproduction.Protocol((setting,), ("ours",), 1, 3)
+    job = reproduction.setting_jobs(protocol, setting, tmp_path)[0]
+    assert reproduction.read_eval(job) is None  # not run yet
+    Path(job.run_dir).mkdir(parents=True)
+    (Path(job.run_dir) / "eval.json").write_text("{not json")
+    with pytest.raises(reproduction.ReproductionError, match="cannot read cached"):
+        reproduction.read_eval(job)
+    (Path(job.run_dir) / "eval.json").write_text(json.dumps({"variant": "s_attn", "seed": 0}))
+    with pytest.raises(reproduction.ReproductionError, match="is not the result of"):
+        reproduction.read_eval(job)
+    (Path(job.run_dir) / "eval.json").write_text(json.dumps({"variant": "ours", "seed": 0}))
+    assert reproduction.read_eval(job) is None  # seed 0 of ours also needs its scenes.npz
+    (Path(job.run_dir) / "scenes.npz").write_bytes(b"")
+    assert reproduction.read_eval(job) == {"variant": "ours", "seed": 0}
+
+
 # ---------------------------------------------------------------------------------- planning
 def test_settings_and_groups_expand_in_canonical_order():
-    names = reproduce.pick(
-        "hc_go,main,dm_r0.3", tuple(reproduce.SETTING_BY_NAME), reproduce.GROUPS, "setting"
+    names = reproduction.pick(
+        "hc_go,main,dm_r0.3", tuple(reproduction.SETTING_BY_NAME), reproduction.GROUPS, "setting"
     )
     assert names == ("dm_r0.3", "hc_stop", "hc_go")
-    assert reproduce.GROUPS["size"] == ("dm_3+10", "dm_15+30", "dm_30+100")
+    assert reproduction.GROUPS["size"] == ("dm_3+10", "dm_15+30", "dm_30+100")
 
 
 def test_quick_caps_the_major_count_and_keeps_small_settings():
-    by_name = reproduce.SETTING_BY_NAME
-    quick = reproduce.Protocol(tuple(by_name.values()), VARIANTS, 2, 1, quick=True)
-    full = reproduce.Protocol(tuple(by_name.values()), VARIANTS, 10, 200)
+    by_name = reproduction.SETTING_BY_NAME
+    quick = reproduction.Protocol(tuple(by_name.values()), VARIANTS, 2, 1, quick=True)
+    full = reproduction.Protocol(tuple(by_name.values()), VARIANTS, 10, 200)
     assert quick.counts(by_name["dm_3+10"]) == (10, 3)
     assert quick.counts(by_name["dm_r0.8"]) == (10, 8)  # 40 * 10/50
     assert quick.counts(by_name["dm_30+100"]) == (10, 3)
@@ -244,9 +362,9 @@ def test_quick_caps_the_major_count_and_keeps_small_settings():
 
 
 def test_jobs_cover_every_variant_and_seed(tmp_path):
-    setting = reproduce.SETTING_BY_NAME["hc_go"]
-    protocol = reproduce.Protocol((setting,), VARIANTS, 3, 7)
-    jobs = reproduce.setting_jobs(protocol, setting, tmp_path)
+    setting = reproduction.SETTING_BY_NAME["hc_go"]
+    protocol = reproduction.Protocol((setting,), VARIANTS, 3, 7)
+    jobs = reproduction.setting_jobs(protocol, setting, tmp_path)
     assert len(jobs) == 5 * 3 + 1
     assert {(j.variant, j.seed) for j in jobs if j.save_scenes} == {("ours", 0), ("s_attn", 0)}
     data = Path(jobs[0].data_path)
@@ -260,164 +378,22 @@ def test_jobs_cover_every_variant_and_seed(tmp_path):
 
 
 def test_cache_keys_change_with_the_configs(tmp_path):
-    setting = reproduce.SETTING_BY_NAME["dm_r0.3"]
-    protocol = reproduce.Protocol((setting,), ("ours",), 1, 5)
-    spec = reproduce.data_spec(protocol, setting)
-    other = dataclasses.replace(spec, scenario_digest=reproduce.digest({"changed": 1}))
+    setting = reproduction.SETTING_BY_NAME["dm_r0.3"]
+    protocol = reproduction.Protocol((setting,), ("ours",), 1, 5)
+    spec = reproduction.data_spec(protocol, setting)
+    other = dataclasses.replace(spec, scenario_digest=reproduction.digest({"changed": 1}))
     assert spec.stem != other.stem
 
     def key(variant: str, seed: int, epochs: int) -> str:
-        return reproduce.run_dir(tmp_path, spec, variant, seed, epochs).name.split("_")[-1]
+        return reproduction.run_dir(tmp_path, spec, variant, seed, epochs).name.split("_")[-1]
 
     keys = {key("ours", 0, 5), key("nonsmooth", 0, 5), key("ours", 1, 5), key("ours", 0, 6)}
     assert len(keys) == 4 and key("ours", 0, 5) == key("ours", 0, 5)
-    assert reproduce.digest({"a": 1, "b": 2}) == reproduce.digest({"b": 2, "a": 1})
+    assert reproduction.digest({"a": 1, "b": 2}) == reproduction.digest({"b": 2, "a": 1})
 
 
 def test_figure_scenes_pick_the_first_interacting_scene_per_case():
     case = np.array([1, 0, 0, 1, 0])
     interaction = np.zeros((5, 4), dtype=bool)
     interaction[2, 1] = interaction[4, 3] = True
-    assert reproduce.figure_scenes(case, interaction, 2) == [2, 0]  # case 1: none -> first
-
-
-# ---------------------------------------------------------------------------------- statistics
-def test_summary_is_mean_and_sample_std():
-    summary = _report.summarize([1.0, 2.0, None, 3.0, 4.0])
-    assert summary["n"] == 4 and summary["mean"] == pytest.approx(2.5)
-    assert summary["std"] == pytest.approx(math.sqrt(5.0 / 3.0))  # squared deviations 5, n-1 3
-    assert _report.summarize([2.0]) == {"mean": 2.0, "std": None, "n": 1}
-    assert _report.summarize([None]) == {"mean": None, "std": None, "n": 0}
-
-
-def test_welch_test_matches_scipy_and_the_formula():
-    a, b = [0.51, 0.48, 0.55, 0.50, 0.47], [0.62, 0.70, 0.58, 0.66]
-    result = _report.welch_test(a, b)
-    assert result["p"] == pytest.approx(stats.ttest_ind(a, b, equal_var=False).pvalue)
-    va, vb = np.var(a, ddof=1) / len(a), np.var(b, ddof=1) / len(b)
-    t = (np.mean(a) - np.mean(b)) / math.sqrt(va + vb)
-    df = (va + vb) ** 2 / (va**2 / (len(a) - 1) + vb**2 / (len(b) - 1))
-    assert result["t"] == pytest.approx(t)
-    assert result["p"] == pytest.approx(2 * stats.t.sf(abs(t), df))
-    assert _report.welch_test([1.0], [2.0, 3.0]) == {"t": None, "p": None}
-
-
-def fake_eval(ade: dict, fde: dict, accuracy: float = 0.5) -> dict:
-    """An eval.json of a halting-car setting with `go` as the major case."""
-    names = {"major": "go", "minor": "stop"}
-
-    def group(scale: float) -> dict:
-        cases = {names[r]: {"ade": scale * ade[r], "fde": scale * fde[r]} for r in names}
-        return {"cases": cases, "overall": {"ade": scale * ade["major"], "fde": 0.0}}
-
-    acc = {
-        "cases": {n: {"accuracy": accuracy, "mean_weight": accuracy / 2} for n in names.values()},
-        "overall": {"accuracy": accuracy, "mean_weight": accuracy / 2},
-    }
-    return {
-        "major_case": "go",
-        "case_names": ["stop", "go"],
-        "main_agents": group(1.0),
-        "all_agents": group(0.1),
-        "attention_accuracy": acc,
-        "train_seconds": 2.0,
-    }
-
-
-def hand_records() -> list[dict]:
-    rows = [
-        ("ours", 0, 1.0, 2.0),
-        ("ours", 1, 3.0, 4.0),
-        ("s_attn", 0, 5.0, 8.0),
-        ("s_attn", 1, 7.0, 8.0),
-        ("const_vel", 0, 9.0, 9.0),
-    ]
-    return [
-        _report.make_record(
-            "hc_go", v, s, fake_eval({"major": a, "minor": m}, {"major": 2 * a, "minor": 2 * m})
-        )
-        for v, s, a, m in rows
-    ]
-
-
-def test_records_map_case_names_to_major_and_minor():
-    record = hand_records()[0]
-    assert record["case_names"] == {"major": "go", "minor": "stop"}
-    assert record["main_agents"]["major"] == {"ade": 1.0, "fde": 2.0}
-    assert record["main_agents"]["minor"] == {"ade": 2.0, "fde": 4.0}
-    assert record["all_agents"]["minor"]["ade"] == pytest.approx(0.2)
-
-
-def test_attention_weight_is_aggregated_and_tabled():
-    aggregates = _report.aggregate(hand_records())
-    weight = aggregates["hc_go"]["ours"]["attention_weight"]["minor"]
-    assert weight == {"mean": 0.25, "std": 0.0, "n": 2}  # fake_eval: weight = accuracy / 2
-    names = {"major": "go", "minor": "stop"}
-    lines = _report.results_table(
-        aggregates, "hc_go", ("ours", "const_vel"), "main_agents", names
-    ).splitlines()
-    assert "attn. weight major" in lines[0]
-    assert lines[2].startswith("| Ours |") and lines[2].count("0.250 ± 0.000") == 2
-    assert lines[3].startswith("| Const-Vel |") and lines[3].count("n/a") == 4
-
-
-def test_bar_inputs_from_hand_made_runs():
-    aggregates = _report.aggregate(hand_records())
-    bars = _report.bar_inputs(
-        aggregates, "hc_go", "ade", ("s_attn", "nonsmooth", "ours", "const_vel")
-    )
-    assert bars.variants == ("s_attn", "ours", "const_vel")  # nonsmooth was not run
-    assert bars.cases == ("major", "minor")
-    np.testing.assert_allclose(bars.means, [[6.0, 8.0], [2.0, 3.0], [9.0, 9.0]])
-    root2 = math.sqrt(2.0)  # sample std of two values d apart is d / sqrt(2)
-    np.testing.assert_allclose(bars.errors, [[root2, 0.0], [root2, root2], [0.0, 0.0]])
-    fde = _report.bar_inputs(aggregates, "hc_go", "fde", ("ours",))
-    np.testing.assert_allclose(fde.means, [[4.0, 6.0]])
-
-
-def test_size_series_from_hand_made_runs():
-    aggregates = _report.aggregate(hand_records())
-    mean, std = _report.series(aggregates, ["hc_go", "missing"], "s_attn", "minor", "fde")
-    np.testing.assert_allclose(mean, [16.0, np.nan])  # 2 x minor ADE 8 in both seeds
-    np.testing.assert_allclose(std, [0.0, 0.0])
-
-
-def test_comparisons_and_verdicts_on_hand_made_runs():
-    tests = _report.compare(hand_records())
-    cell = tests["hc_go"]["ours_vs_s_attn"]["main_agents"]["major"]["ade"]
-    assert cell["mean_ours"] == 2.0 and cell["mean_other"] == 6.0
-    assert cell["p"] == pytest.approx(stats.ttest_ind([1, 3], [5, 7], equal_var=False).pvalue)
-    assert _report.better_verdict(1.0, 2.0, 0.001, 0.01) == "holds"
-    assert _report.better_verdict(1.0, 2.0, 0.02, 0.01) == "not significant"
-    assert _report.better_verdict(1.0, 2.0, None, 0.01) == "not significant"
-    assert _report.better_verdict(2.0, 1.0, 0.001, 0.01) == "does not hold"
-    assert _report.better_verdict(None, 1.0, 0.5, 0.01) == "n/a"
-    assert _report.claim_cell(None, "better") == "n/a (not run)"
-    assert _report.claim_cell(
-        {"mean_ours": 1.1, "mean_other": 1.0, "p": 0.4}, "comparable"
-    ).startswith("holds (no significant difference) (+10%")
-
-
-@pytest.mark.parametrize(
-    "ours_by_size, verdict",
-    [
-        ([1.0, 1.6, 1.9], "holds"),  # margins 1.0, 0.4, 0.1
-        ([1.0, 1.9, 1.6], "partly"),  # margins 1.0, 0.1, 0.4
-        ([1.9, 1.6, 1.0], "does not hold"),  # margins 0.1, 0.4, 1.0
-    ],
-)
-def test_size_claim_needs_a_shrinking_margin(ours_by_size, verdict):
-    records = []
-    for k, ours in enumerate(ours_by_size):
-        for variant, ade in (("ours", ours), ("nonsmooth", 2.0)):
-            records.append(
-                _report.make_record(
-                    f"size{k}",
-                    variant,
-                    0,
-                    fake_eval({"major": ade, "minor": ade}, {"major": ade, "minor": ade}),
-                )
-            )
-    cells = _report.size_claim(_report.aggregate(records), ["size0", "size1", "size2"])
-    assert set(cells) == {"major ade", "major fde", "minor ade", "minor fde"}
-    assert all(cell.startswith(verdict + " (") for cell in cells.values())
+    assert reproduction.figure_scenes(case, interaction, 2) == [2, 0]  # case 1: none -> first

@@ -1,0 +1,171 @@
+"""A reproduction's report: RESULTS.md, results.json beside it and the figures in results/.
+
+`write_report(ReportInput, path)` gathers the statistics (statistics.analyse), the datasets'
+and the machine's description (context), draws the figures (figures) and writes the markdown
+(markdown.render) and the JSON, each file atomically.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pipeline.cli import atomic_output
+from pipeline.report import figures, markdown
+from pipeline.report.context import DatasetInfo, MachineInfo, dataset_info, machine_info
+from pipeline.report.records import ClaimRow, Results, RunRecord
+from pipeline.report.statistics import STATISTICS, analyse, claims
+from predictor.format import read_meta, read_split
+from predictor.plots import load_predictions, plot_samples
+
+if TYPE_CHECKING:
+    from pipeline.reproduction import Invocation, Protocol, RunCounts
+
+NOTES_FILE = "results_notes.md"  # the lead's discussion, beside the report, quoted verbatim
+FIGURE_SETTINGS = ("dm_r0.3", "hc_stop")  # settings whose scenes are drawn when run
+
+
+@dataclass(frozen=True)
+class ReportInput:
+    """Everything the report needs from a reproduction."""
+
+    protocol: Protocol
+    runs: tuple[RunRecord, ...]
+    data_paths: Mapping[str, str]  # setting -> dataset file
+    scene_files: Mapping[str, Mapping[str, str]]  # setting -> {"ours", "s_attn"} -> scenes.npz
+    command: str
+    counts: RunCounts
+    jobs: int
+    seconds: float  # wall time of the reproduction before the report
+    history: tuple[Invocation, ...] = ()  # invocations that trained runs into the cache
+
+
+@dataclass(frozen=True)
+class Report:
+    """The input with what is derived from it: statistics, datasets, machine, claims, figures."""
+
+    input: ReportInput
+    results: Results
+    datasets: Mapping[str, DatasetInfo]  # setting -> its dataset
+    size_settings: tuple[str, ...]  # size-study settings run, smallest training set first
+    claims: tuple[ClaimRow, ...]
+    machine: MachineInfo
+    date: str
+    figures: Mapping[str, tuple[str, ...]] = field(default_factory=dict)  # section -> files
+
+    def to_json(self) -> dict:
+        """The content of results.json."""
+        source = self.input
+        return {
+            "date": self.date,
+            "machine": asdict(self.machine),
+            "command": source.command,
+            "wall_seconds": round(source.seconds, 1),
+            "statistics": STATISTICS,
+            "protocol": source.protocol.to_json(),
+            "datasets": {name: info.to_json() for name, info in self.datasets.items()},
+            "counts": source.counts.to_json(),
+            "runs": [run.to_json() for run in self.results.runs],
+            "aggregates": _by_setting(
+                {(s, v): x.to_json() for (s, v), x in self.results.summaries.items()}
+            ),
+            "tests": _by_setting(
+                {(s, f"ours_vs_{o}"): x.to_json() for (s, o), x in self.results.comparisons.items()}
+            ),
+            "claims": [row.to_json() for row in self.claims],
+        }
+
+
+def _by_setting(entries: Mapping[tuple[str, str], dict]) -> dict:
+    out: dict = {}
+    for (setting, key), value in entries.items():
+        out.setdefault(setting, {})[key] = value
+    return out
+
+
+def build_report(source: ReportInput) -> Report:
+    """Statistics, dataset and machine descriptions and claim verdicts of a reproduction."""
+    protocol = source.protocol
+    results = analyse(source.runs)
+    datasets = {s.name: dataset_info(source.data_paths[s.name]) for s in protocol.settings}
+    size = tuple(
+        s.name
+        for s in sorted(
+            (s for s in protocol.settings if s.group == "size"),
+            key=lambda s: s.num_major + s.num_minor,
+        )
+    )
+    rows = claims(results, [s.name for s in protocol.settings], size)
+    return Report(
+        source,
+        results,
+        datasets,
+        size,
+        tuple(rows),
+        machine_info(source.jobs),
+        datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+    )
+
+
+def draw_figures(report: Report, out: Path) -> dict[str, tuple[str, ...]]:
+    """Write every figure under `out`; returns section -> file names."""
+    source, results = report.input, report.results
+    protocol, shown = source.protocol, {}
+
+    def keep(section: str, fig, name: str) -> None:
+        figures.save(fig, out / name)
+        shown[section] = (*shown.get(section, ()), name)
+
+    for setting in protocol.settings:
+        if results.has_setting(setting.name):
+            names = report.datasets[setting.name].case_names
+            fig = figures.bar_figure(results, setting.name, protocol.variants, names, setting.title)
+            keep("bars", fig, f"bars_{setting.name}.png")
+    size = report.size_settings
+    if any(results.has_setting(s) for s in size):
+        labels = [f"{s}\n({report.datasets[s].training_pool.label})" for s in size]
+        keep(
+            "size", figures.size_figure(results, size, labels, protocol.variants), "size_study.png"
+        )
+    drawn = [s.name for s in protocol.settings if s.name in source.scene_files]
+    for setting in [s for s in drawn if s in FIGURE_SETTINGS] or drawn[:1]:
+        files = source.scene_files[setting]
+        ours, other = load_predictions(files["ours"]), load_predictions(files["s_attn"])
+        case_names = report.datasets[setting].case_names
+        for role in ("major", "minor"):
+            name = case_names.of(role)
+            rows = np.flatnonzero(ours.case == ours.case_names.index(name))
+            if len(rows):
+                title = (
+                    f"{setting}: {role} case ({name}), first test scene with an interaction "
+                    "period; Ours vs S-Attn (training seed 0)"
+                )
+                fig = figures.scene_figure(ours, other, int(rows[0]), title)
+                keep("scenes", fig, f"scene_{setting}_{role}.png")
+    for scenario in dict.fromkeys(s.scenario for s in protocol.settings):
+        path = source.data_paths[next(s.name for s in protocol.settings if s.scenario == scenario)]
+        fig = plot_samples(read_split(path, "test"), read_meta(path), num_per_case=2)
+        keep("samples", fig, f"samples_{scenario}.png")
+    return shown
+
+
+def write_report(source: ReportInput, path: Path) -> int:
+    """Write the figures (results/ beside `path`), results.json and the markdown at `path`;
+    returns the number of figures."""
+    report = build_report(source)
+    out = path.parent / "results"
+    out.mkdir(parents=True, exist_ok=True)
+    report = replace(report, figures=draw_figures(report, out))
+    with atomic_output(path.with_name("results.json")) as temp:
+        temp.write_text(json.dumps(report.to_json(), indent=1) + "\n")
+    notes = path.with_name(NOTES_FILE)
+    text = markdown.render(report, notes.read_text() if notes.is_file() else None, NOTES_FILE)
+    with atomic_output(path) as temp:
+        temp.write_text(text)
+    return sum(len(names) for names in report.figures.values())

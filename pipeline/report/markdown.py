@@ -1,0 +1,283 @@
+"""The text of RESULTS.md, from the typed records of a reproduction (no I/O here)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pipeline.report.records import (
+    ATTENTION,
+    CASES,
+    HEADLINE,
+    LABELS,
+    METRICS,
+    CaseNames,
+    ClaimRow,
+    Group,
+    Measure,
+    Results,
+    Summary,
+)
+from pipeline.report.statistics import ALPHA, ALPHA_S_ATTN, STATISTICS, size_margins
+
+if TYPE_CHECKING:
+    from pipeline.report.document import Report
+
+FIXED_ATTENTION = ("average", "correct", "const_vel")  # nothing learned to score
+NOTES = """Notes on the protocol:
+- One dataset per setting, generated with dataset seed 0; all variants and training seeds see
+  the same trajectories, so the spread over seeds is training randomness only (initial weights,
+  batch order, rollout samples), not data sampling.
+- The size study uses the paper's explicit counts (minor + major) 3+10, 15+30 and 30+100; note
+  that 15/30 = 0.5, not the 0.3 ratio the paper's text mentions (3/10 and 30/100 are 0.3).
+- Every trained run is evaluated from its `best.pt` (lowest validation ADE of the main cars) on
+  the test split, predicting from the observed steps and feeding back the predicted means.
+- Attention accuracy: over the fed-back prediction steps inside the interaction period, the
+  share of (step, main car) pairs where the labelled car has strictly the largest attention
+  weight of the main car; attention weight: the mean weight on the labelled car over the same
+  pairs (uniform attention over the 21 other cars gives 1/21 = 0.048). Neither is shown for
+  Ours-Average and Ours-Correct, whose attention is fixed (by construction accuracy 0 and
+  weight 1/21 for Average, 1 and 1 for Correct); the raw numbers are in `results.json`."""
+CLAIM_RULES = (
+    f"Rules: **holds** = Ours has the lower mean and p < alpha (alpha = "
+    f"{ALPHA_S_ATTN} against S-Attn, as in the paper; {ALPHA} otherwise); **not "
+    "significant** = lower mean, p >= alpha; **does not hold** = Ours' mean is not "
+    f"lower. For Ours-Correct: **holds** unless Correct is better with p < {ALPHA} "
+    "(difference relative to Correct). Size study: the mean margin NonSmooth − Ours "
+    "should fall from the smallest to the largest training set (**partly**: only "
+    "smallest > largest)."
+)
+HEADLINE_MEASURES = tuple(Measure(m, c) for c in CASES for m in METRICS)
+
+
+def fmt(summary: Summary, digits: int = 3) -> str:
+    """ "mean ± std", "mean" (one value) or "n/a"."""
+    if summary.mean is None:
+        return "n/a"
+    if summary.std is None:
+        return f"{summary.mean:.{digits}f}"
+    return f"{summary.mean:.{digits}f} ± {summary.std:.{digits}f}"
+
+
+def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
+
+
+def results_table(
+    results: Results, setting: str, variants: Sequence[str], group: Group, names: CaseNames
+) -> str:
+    """Mean ± std of ADE/FDE per case (and, for the headline group, attention accuracy and the
+    mean attention weight on the labelled car), one row per variant that was run."""
+    header = ["variant"] + [f"{c} ({names.of(c)}) {m.upper()}" for c in CASES for m in METRICS]
+    if group == HEADLINE:
+        header += [f"attn. {k} {c}" for k in ("acc.", "weight") for c in CASES]
+    rows = []
+    for variant in variants:
+        summary = results.summary(setting, variant)
+        if summary is None:
+            continue
+        row = [LABELS[variant]] + [
+            fmt(summary[Measure(m, c, group)]) for c in CASES for m in METRICS
+        ]
+        if group == HEADLINE:
+            row += [
+                "n/a" if variant in FIXED_ATTENTION else fmt(summary[Measure(q, c)], digits)
+                for q, digits in zip(ATTENTION, (2, 3))
+                for c in CASES
+            ]
+        rows.append(row + [str(summary.runs)])
+    return table(header + ["runs"], rows)
+
+
+def pvalue_table(results: Results, setting: str) -> str:
+    """p-values and mean differences of Ours against S-Attn and Ours-NonSmooth."""
+    rows = []
+    for other in ("s_attn", "nonsmooth"):
+        comparison = results.comparison(setting, other)
+        if comparison is None:
+            continue
+        row = [f"Ours vs {LABELS[other]}"]
+        for measure in HEADLINE_MEASURES:
+            cell = comparison[measure]
+            p = "n/a" if cell.test.p is None else f"{cell.test.p:.2g}"
+            if cell.mean_ours is not None and cell.mean_other is not None:
+                p += f" (Δ {cell.mean_ours - cell.mean_other:+.3f} m)"
+            row.append(p)
+        rows.append(row)
+    if not rows:
+        return "_No comparison: Ours and S-Attn/Ours-NonSmooth were not both run._"
+    header = ["Welch t-test, p (Δ = Ours − other)"] + [
+        f"{m.case} {m.quantity.upper()}" for m in HEADLINE_MEASURES
+    ]
+    return table(header, rows)
+
+
+def claims_table(rows: Sequence[ClaimRow]) -> str:
+    header = ["setting", "claim"] + [f"{m.case} {m.quantity.upper()}" for m in HEADLINE_MEASURES]
+    return table(
+        header,
+        [
+            [f"`{row.setting}`", row.claim, *(row.cells[m].text for m in HEADLINE_MEASURES)]
+            for row in rows
+        ],
+    )
+
+
+def history_line(history: Sequence) -> str:
+    """Markdown bullet of the invocations that trained runs into the cache (wall time)."""
+    if not history:
+        return "- Training invocations logged in the cache: none"
+    total = sum(entry.seconds for entry in history) / 60
+    items = "; ".join(
+        f"{entry.date}: {entry.seconds / 60:.1f} min, {entry.runs} runs, `{entry.command}`"
+        for entry in history
+    )
+    return (
+        f"- Training invocations logged in the cache: {len(history)}, {total:.1f} min wall "
+        f"in all ({items})"
+    )
+
+
+def settings_table(report: Report) -> str:
+    """Per setting: scenario, cases, split sizes, median training time per run, dataset file."""
+    rows = []
+    for setting in report.input.protocol.settings:
+        data = report.datasets[setting.name]
+        times = [
+            r.train_seconds
+            for r in report.results.runs
+            if r.setting == setting.name and r.variant != "const_vel" and r.train_seconds
+        ]
+        median = f"{float(np.median(times)) / 60:.1f}" if times else "n/a"
+        rows.append(
+            [
+                f"`{setting.name}`",
+                data.scenario,
+                data.case_names.major,
+                data.case_names.minor,
+                *(counts.label for counts in data.counts.values()),
+                median,
+                f"`{Path(data.path).name}`",
+            ]
+        )
+    header = ["setting", "scenario", "major case", "minor case", "train (minor+major)", "val"]
+    return table(header + ["test", "median train min/run", "dataset"], rows)
+
+
+def size_section(report: Report) -> str:
+    """The margins NonSmooth − Ours per size setting, and the size figure."""
+    results, size = report.results, report.size_settings
+    if not any(results.has_setting(s) for s in size):
+        return "_No size-study setting was run._"
+    margins = {m: size_margins(results, size, m) for m in HEADLINE_MEASURES}
+    rows = [
+        [
+            f"`{setting}`",
+            report.datasets[setting].training_pool.label,
+            *(
+                "n/a" if margins[m][k] is None else f"{margins[m][k]:+.3f}"
+                for m in HEADLINE_MEASURES
+            ),
+        ]
+        for k, setting in enumerate(size)
+    ]
+    header = ["setting", "minor+major"] + [
+        f"NonSmooth − Ours {m.case} {m.quantity.upper()} [m]" for m in HEADLINE_MEASURES
+    ]
+    text = table(header, rows)
+    if "size" in report.figures:
+        text += "\n\n![size study](results/size_study.png)"
+    return text
+
+
+def how_produced(report: Report) -> str:
+    """The bullets saying what ran, where, and how long it took."""
+    source, machine = report.input, report.machine
+    protocol, counts = source.protocol, source.counts
+    seeds = f"training seeds 0..{protocol.seeds - 1}" if protocol.seeds > 1 else "seed 0"
+    compute_h = sum(r.train_seconds or 0.0 for r in report.results.runs) / 3600
+    return "\n".join(
+        [
+            f"- Command: `{source.command}`",
+            f"- Date: {report.date}",
+            f"- Wall time: {source.seconds / 60:.1f} min for this invocation; "
+            f"the training time recorded in all runs sums to {compute_h:.2f} h "
+            "(one thread each)",
+            history_line(source.history),
+            f"- Machine: {machine.cores} cores, {machine.cpu_model}; torch "
+            f"{machine.torch}, {machine.torch_threads_per_job} torch thread per job, "
+            f"{machine.jobs} parallel jobs; Python {machine.python}",
+            f"- Epochs: {protocol.epochs}; "
+            f"seeds per trained variant: {protocol.seeds} ({seeds}); "
+            f"`const_vel` once per setting (deterministic)",
+            f"- Runs: {counts.runs} ({counts.trained} trained now, {counts.resumed} "
+            f"resumed, {counts.reused} reused from the cache, {counts.failed} failed); "
+            f"datasets: {counts.datasets_generated} generated, "
+            f"{counts.datasets_reused} reused",
+            f"- Statistics: {STATISTICS}",
+            "- Machine-readable results (per run and aggregated): `results.json` beside this file",
+        ]
+    )
+
+
+def setting_section(report: Report, setting) -> list[str]:
+    """Tables (and bar figure) of one setting."""
+    results, variants = report.results, report.input.protocol.variants
+    names = report.datasets[setting.name].case_names
+    parts = [
+        f"\n### `{setting.name}`: {setting.title}\n",
+        results_table(results, setting.name, variants, HEADLINE, names),
+        "",
+        pvalue_table(results, setting.name),
+        "",
+        "<details><summary>All agents (22 cars)</summary>\n",
+        results_table(results, setting.name, variants, "all_agents", names),
+        "\n</details>",
+    ]
+    if f"bars_{setting.name}.png" in report.figures.get("bars", []):
+        parts.append(f"\n![ADE/FDE {setting.name}](results/bars_{setting.name}.png)")
+    return parts
+
+
+def render(report: Report, notes: str | None, notes_name: str) -> str:
+    """The markdown text; `notes` (the lead's discussion, verbatim) ends it when given."""
+    protocol, counts = report.input.protocol, report.input.counts
+    parts = [
+        "# Reproduction of the paper's synthetic experiments\n",
+        "Written by `tools/reproduce.py`; do not edit by hand (the discussion at the end "
+        "comes from `results_notes.md` beside this file).",
+    ]
+    if protocol.quick:
+        parts.append(
+            "\n> **Quick smoke run (`--quick`)**: tiny datasets, few epochs and seeds. "
+            "These numbers exercise the pipeline and say nothing about the paper."
+        )
+    parts += ["\n## How this was produced\n", how_produced(report)]
+    if counts.failures:
+        parts.append(
+            "\nFailed runs (diverged):\n\n" + "\n".join(f"- `{line}`" for line in counts.failures)
+        )
+    parts += ["\n## Settings and datasets\n", settings_table(report), "", NOTES]
+    parts.append("\n## Results (main cars: the two interacting cars)\n")
+    for setting in protocol.settings:
+        parts += setting_section(report, setting)
+    parts += ["\n## Training-set size study (Double Merge, Fig. 4)\n", size_section(report)]
+    parts += ["\n## Paper claims\n", CLAIM_RULES, "", claims_table(report.claims)]
+    parts.append("\n## Trajectories and attention (Fig. 6)\n")
+    parts += [f"![scene](results/{name})\n" for name in report.figures.get("scenes", [])] or [
+        "_Needs Ours and S-Attn (seed 0) of at least one setting._"
+    ]
+    parts.append("\n## Sample trajectories (test split, ground-truth experts)\n")
+    parts += [f"![samples](results/{name})\n" for name in report.figures.get("samples", [])]
+    parts += [
+        "\n## Discussion\n",
+        notes.rstrip()
+        if notes is not None
+        else f"_No `{notes_name}` yet: the lead writes it after looking at the results._",
+    ]
+    return "\n".join(parts) + "\n"

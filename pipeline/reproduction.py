@@ -1,0 +1,658 @@
+"""Reproduce the paper's synthetic experiments: the protocol, the cache, the jobs and the pool.
+
+Protocol (paper, Sec. V): for every setting one dataset is generated with dataset seed 0 (so all
+variants and seeds see the same trajectories); each trained variant (`ours`, `s_attn`,
+`nonsmooth`, `average`, `correct`) is trained with training seeds 0..k-1 and evaluated from its
+best.pt (lowest validation ADE of the main agents) on the test split; `const_vel` is evaluated
+once per setting (deterministic). `reproduce(...)` runs what the cache lacks and writes the
+report (pipeline.report).
+
+Cache (`out_dir`): `data/<stem>.h5` per dataset (the stem names every generator input) and
+`runs/<stem>/<variant>/seed<k>_ep<E>_<hash>/` per run (train's files plus `eval.json`, written
+last and atomically, and for seed 0 of ours and s_attn `scenes.npz`, the predictions of the
+figure scenes). A run with its eval.json is reused; a run with last.pt resumes (bit-identical to
+an uninterrupted one). Identical inputs share one cache entry. `invocations.jsonl` logs every
+invocation that ran jobs (date, command, wall seconds), for the report's wall time. The keys
+hash the scenario, model and training configurations (a changed default starts new runs) but
+not the code: delete the cache after changing how experts, model or training behave.
+
+Interrupts: the pool's workers ignore SIGINT and SIGTERM (a terminal's Ctrl-C reaches the whole
+process group); the parent, on any exception (KeyboardInterrupt included), sets a shared stop
+event. Each job checks it at safe points: before it starts, before every optimiser step and
+before the evaluation, so a stopped run keeps its last completed epoch (last.pt) and no file is
+half written; a rerun resumes it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import hashlib
+import io
+import json
+import multiprocessing
+import signal
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import TypeVar
+
+import numpy as np
+from tqdm import tqdm
+
+from pipeline.cli import atomic_output
+from pipeline.report.records import RunRecord
+
+TRAINED_VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct")
+BASELINE = "const_vel"
+ALL_VARIANTS = (*TRAINED_VARIANTS, BASELINE)
+FIGURE_VARIANTS = ("ours", "s_attn")  # their first seed keeps predictions of the figure scenes
+DATA_SEED = 0  # one dataset per setting, fixed: seeds vary only the training
+NUM_TEST = 50  # test trajectories per case (paper)
+PAPER_EPOCHS, PAPER_SEEDS = 200, 10
+QUICK_EPOCHS, QUICK_SEEDS, QUICK_NUM_TEST = 1, 2, 5
+QUICK_MAX_MAJOR = 10  # a quick protocol shrinks every setting to at most 10 major trajectories
+QUICK_MIN_MINOR = 2
+INVOCATION_LOG = "invocations.jsonl"  # in the cache: date, command, wall seconds, jobs run
+
+
+class ReproductionError(ValueError):
+    """A reproduction cannot use its inputs or its cache; the message is one line."""
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One experimental setting: a scenario, its major case and its training-pool sizes."""
+
+    name: str
+    scenario: str  # key of scenarios.SCENARIOS
+    major_case: str
+    num_major: int  # major-case trajectories, training + validation
+    num_minor: int  # minor-case trajectories, training + validation
+    group: str  # "ratio", "size" or "halting": the paper figure it belongs to
+    title: str
+
+
+SETTINGS = (
+    Setting("dm_r0.3", "double_merge", "major", 50, 15, "ratio", "Double Merge, minor ratio 0.3"),
+    Setting("dm_r0.8", "double_merge", "major", 50, 40, "ratio", "Double Merge, minor ratio 0.8"),
+    Setting("dm_3+10", "double_merge", "major", 10, 3, "size", "Double Merge, 3 minor + 10 major"),
+    Setting(
+        "dm_15+30", "double_merge", "major", 30, 15, "size", "Double Merge, 15 minor + 30 major"
+    ),
+    Setting(
+        "dm_30+100", "double_merge", "major", 100, 30, "size", "Double Merge, 30 minor + 100 major"
+    ),
+    Setting(
+        "hc_stop",
+        "halting_car",
+        "stop",
+        50,
+        15,
+        "halting",
+        "Halting Car, stop major, minor ratio 0.3",
+    ),
+    Setting(
+        "hc_go", "halting_car", "go", 50, 15, "halting", "Halting Car, go major, minor ratio 0.3"
+    ),
+)
+SETTING_BY_NAME = {s.name: s for s in SETTINGS}
+GROUPS = {
+    "main": ("dm_r0.3", "hc_stop"),
+    "ratio": tuple(s.name for s in SETTINGS if s.group == "ratio"),
+    "size": tuple(s.name for s in SETTINGS if s.group == "size"),
+    "halting": tuple(s.name for s in SETTINGS if s.group == "halting"),
+    "all": tuple(SETTING_BY_NAME),
+}
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """What a reproduction runs (everything that changes results is here or in the settings)."""
+
+    settings: tuple[Setting, ...]
+    variants: tuple[str, ...]  # subset of ALL_VARIANTS, canonical order
+    seeds: int  # training seeds 0 .. seeds-1
+    epochs: int
+    num_test: int = NUM_TEST  # test trajectories per case
+    data_seed: int = DATA_SEED
+    quick: bool = False  # cap every setting at QUICK_MAX_MAJOR major trajectories
+
+    def counts(self, setting: Setting) -> tuple[int, int]:
+        """(num_major, num_minor) generated for a setting; a quick protocol caps the major count."""
+        if not self.quick or setting.num_major <= QUICK_MAX_MAJOR:
+            return setting.num_major, setting.num_minor
+        scale = QUICK_MAX_MAJOR / setting.num_major
+        return QUICK_MAX_MAJOR, max(QUICK_MIN_MINOR, round(setting.num_minor * scale))
+
+    def to_json(self) -> dict:
+        """The protocol as results.json gives it (settings last)."""
+        fields = {k: v for k, v in asdict(self).items() if k != "settings"}
+        return {**fields, "settings": [asdict(s) for s in self.settings]}
+
+
+def pick(
+    text: str, known: Sequence[str], groups: dict[str, tuple[str, ...]], what: str
+) -> tuple[str, ...]:
+    """Names from a comma list (group names expand), in canonical order; ValueError if unknown."""
+    chosen = set()
+    for name in (part.strip() for part in text.split(",")):
+        if name in groups:
+            chosen.update(groups[name])
+        elif name in known:
+            chosen.add(name)
+        else:
+            raise ReproductionError(
+                f"unknown {what} {name!r}; choose from {', '.join((*known, *groups))}"
+            )
+    return tuple(name for name in known if name in chosen)
+
+
+@dataclass(frozen=True)
+class DataSpec:
+    """The generator inputs of one dataset."""
+
+    scenario: str
+    major_case: str
+    num_major: int
+    num_minor: int
+    num_test: int
+    seed: int
+    scenario_digest: str  # of the scenario's configuration (a changed default changes the key)
+
+    @property
+    def stem(self) -> str:
+        return (
+            f"{self.scenario}_{self.major_case}-major_{self.num_minor}+{self.num_major}"
+            f"_test{self.num_test}_seed{self.seed}_{self.scenario_digest}"
+        )
+
+    def argv(self, out: Path) -> list[str]:
+        """The same inputs as tools/generate.py arguments."""
+        return [
+            "--scenario",
+            self.scenario,
+            "--major-case",
+            self.major_case,
+            "--num-major",
+            str(self.num_major),
+            "--num-minor",
+            str(self.num_minor),
+            "--num-test",
+            str(self.num_test),
+            "--seed",
+            str(self.seed),
+            "--out",
+            str(out),
+        ]
+
+
+@dataclass(frozen=True)
+class Job:
+    """Train (unless the baseline) and evaluate one (dataset, variant, seed)."""
+
+    data_path: str
+    variant: str
+    seed: int  # training seed (0 for the baseline: unused)
+    epochs: int
+    run_dir: str
+    save_scenes: bool  # keep predictions of the figure scenes (scenes.npz)
+
+
+@dataclass(frozen=True)
+class JobOutcome:
+    """What became of one job: "trained", "resumed" or "failed" (diverged), and its wall time."""
+
+    status: str
+    seconds: float
+    error: str = ""
+
+
+# ---------------------------------------------------------------------------------- planning
+def digest(value: object) -> str:
+    """Short stable hash of a JSON-able value (cache keys)."""
+    text = json.dumps(value, sort_keys=True, default=str)
+    return hashlib.sha1(text.encode()).hexdigest()[:8]
+
+
+def data_spec(protocol: Protocol, setting: Setting) -> DataSpec:
+    """The dataset a setting uses under a protocol."""
+    from scenarios import SCENARIOS
+
+    num_major, num_minor = protocol.counts(setting)
+    config = asdict(SCENARIOS[setting.scenario]().config)
+    return DataSpec(
+        setting.scenario,
+        setting.major_case,
+        num_major,
+        num_minor,
+        protocol.num_test,
+        protocol.data_seed,
+        digest(config),
+    )
+
+
+def run_configs(variant: str, seed: int, epochs: int) -> tuple:
+    """(ModelConfig, TrainConfig) of a run: the paper's defaults, one torch thread."""
+    from predictor.config import make_configs
+
+    return make_configs(variant, None, seed=seed, epochs=epochs, threads=1)
+
+
+def data_path(out_dir: Path, spec: DataSpec) -> Path:
+    """Where the cache keeps a dataset."""
+    return out_dir / "data" / f"{spec.stem}.h5"
+
+
+def run_dir(out_dir: Path, spec: DataSpec, variant: str, seed: int, epochs: int) -> Path:
+    """runs/<stem>/<variant>/seed<k>_ep<E>_<digest of the model and training configs>."""
+    from predictor.config import config_to_dict
+
+    base = out_dir / "runs" / spec.stem / variant
+    if variant == BASELINE:
+        return base
+    configs = [config_to_dict(c) for c in run_configs(variant, seed, epochs)]
+    return base / f"seed{seed}_ep{epochs}_{digest(configs)}"
+
+
+def setting_jobs(protocol: Protocol, setting: Setting, out_dir: Path) -> list[Job]:
+    """The jobs of one setting, in variant then seed order."""
+    spec = data_spec(protocol, setting)
+    path = str(data_path(out_dir, spec))
+    jobs = []
+    for variant in protocol.variants:
+        for seed in [0] if variant == BASELINE else range(protocol.seeds):
+            directory = run_dir(out_dir, spec, variant, seed, protocol.epochs)
+            save_scenes = variant in FIGURE_VARIANTS and seed == 0
+            jobs.append(Job(path, variant, seed, protocol.epochs, str(directory), save_scenes))
+    return jobs
+
+
+def unique(items: list) -> list:
+    """Items in first-seen order without repeats (settings may share data or runs)."""
+    return list(dict.fromkeys(items))
+
+
+# ---------------------------------------------------------------------------------- stopping
+class Stopped(KeyboardInterrupt):
+    """Raised in a worker at a safe point once the parent asked the jobs to stop."""
+
+
+_STOP = None  # the pool's stop event, in a worker process (set by _init_worker)
+
+
+def _init_worker(stop) -> None:
+    """Worker start: one torch thread; signals are the parent's business, the event is ours."""
+    import torch
+
+    global _STOP
+    _STOP = stop
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    torch.set_num_threads(1)
+
+
+def check_stop(*_) -> None:
+    """A safe point: raise Stopped if the parent set the stop event (any arguments ignored, so
+    it serves as training's step callback)."""
+    if _STOP is not None and _STOP.is_set():
+        raise Stopped
+
+
+@contextlib.contextmanager
+def _signals_blocked() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM back in this thread; processes started meanwhile inherit the
+    block, so a Ctrl-C cannot reach a worker before it ignores the signal. A signal that
+    arrives meanwhile is delivered on leaving."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+Item = TypeVar("Item")
+Result = TypeVar("Result")
+
+
+def run_parallel(
+    function: Callable[[Item], Result], items: Sequence[Item], jobs: int, desc: str
+) -> list[Result]:
+    """function(item) for every item in `jobs` spawned processes; results in item order.
+
+    On any exception here (Ctrl-C included) the stop event is set: running jobs end at their
+    next safe point, queued ones never start, and the exception is re-raised once all stopped.
+    """
+    results: list = [None] * len(items)
+    if not items:
+        return results
+    context = multiprocessing.get_context("spawn")  # never fork a process that imported torch
+    stop = context.Event()
+    executor = ProcessPoolExecutor(
+        min(jobs, len(items)), mp_context=context, initializer=_init_worker, initargs=(stop,)
+    )
+    bar = tqdm(total=len(items), desc=desc, unit="job", file=sys.stderr, dynamic_ncols=True)
+    try:
+        with _signals_blocked():  # the workers start in submit
+            futures = {executor.submit(function, item): k for k, item in enumerate(items)}
+        for future in as_completed(futures):
+            results[futures[future]] = future.result()
+            bar.update()
+    except BaseException:
+        stop.set()
+        raise
+    finally:
+        bar.close()
+        executor.shutdown(wait=True, cancel_futures=True)
+    return results
+
+
+# ---------------------------------------------------------------------------------- jobs
+def ensure_dataset(item: tuple[DataSpec, str]) -> str:
+    """Generate the dataset unless the cached file exists; returns "generated" or "reused".
+
+    Drives tools/generate.py (on sys.path when run from tools/) until generation is a library
+    call; raises RuntimeError with generate's last error line if it fails.
+    """
+    import generate
+
+    from predictor.format import read_meta
+
+    spec, path = item
+    check_stop()
+    argv = spec.argv(Path(path))
+    expected = asdict(generate.config_from_args(generate.parse_args(argv)))
+    if Path(path).is_file():
+        if read_meta(path).config.get("generator") != expected:
+            raise RuntimeError(f"cached dataset {path} was made with other inputs; delete it")
+        return "reused"
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured), contextlib.redirect_stdout(io.StringIO()):
+            generate.main(argv)
+    except SystemExit as exit_:
+        lines = captured.getvalue().strip().splitlines() or [f"exit status {exit_.code}"]
+        raise RuntimeError(f"generating {path} failed: {lines[-1]}") from None
+    return "generated"
+
+
+def run_job(job: Job) -> JobOutcome:
+    """Train (or resume) and evaluate one run; a diverged run is reported, not raised."""
+    check_stop()
+    started = time.perf_counter()
+    try:
+        status = "trained" if job.variant == BASELINE else train_job(job)
+        check_stop()
+        evaluate_job(job)
+    except FloatingPointError as err:
+        return JobOutcome("failed", time.perf_counter() - started, str(err))
+    return JobOutcome(status, time.perf_counter() - started)
+
+
+def train_job(job: Job) -> str:
+    """Train the run, or resume it from its last.pt; returns "trained" or "resumed"."""
+    from predictor.training import train
+
+    directory = Path(job.run_dir)
+    resume = (directory / "last.pt").is_file()
+    model_cfg, train_cfg = run_configs(job.variant, job.seed, job.epochs)
+    train(
+        job.data_path,
+        model_cfg,
+        train_cfg,
+        directory,
+        resume=resume,
+        overwrite=not resume,
+        progress=False,
+        step_callback=check_stop,
+    )
+    return "resumed" if resume else "trained"
+
+
+def figure_scenes(case: np.ndarray, interaction: np.ndarray, num_cases: int) -> list[int]:
+    """Per case, the first test scene with an interaction period (else the case's first)."""
+    chosen = []
+    for k in range(num_cases):
+        rows = np.flatnonzero(case == k)
+        busy = [int(i) for i in rows if interaction[i].any()]
+        if busy or len(rows):
+            chosen.append(busy[0] if busy else int(rows[0]))
+    return chosen
+
+
+def evaluate_job(job: Job) -> None:
+    """Score the run's best.pt (or the baseline) on the test split; eval.json is written last.
+
+    The same steps as tools/evaluate.py, until evaluation is one library call.
+    """
+    from predictor.data import TrajectoryDataset, collate_batch
+    from predictor.evaluation import (
+        Predictions,
+        load_model,
+        predict_const_vel,
+        predict_model,
+        save_predictions,
+        score,
+    )
+
+    started = time.perf_counter()
+    directory = Path(job.run_dir)
+    directory.mkdir(parents=True, exist_ok=True)
+    test = TrajectoryDataset(job.data_path, "test")
+    meta, batch = test.meta, test.all()
+    info = {
+        "variant": job.variant,
+        "seed": job.seed,
+        "epochs": job.epochs,
+        "data": job.data_path,
+        "major_case": meta.major_case,
+        "case_names": list(meta.case_names),
+        "scenes": batch.batch_size,
+    }
+    if job.variant == BASELINE:
+        predictions = predict_const_vel(batch, meta.num_observed)
+        info.update(epochs=0, train_seconds=0.0)
+    else:
+        model, checkpoint = load_model(directory / "best.pt")
+        predictions = predict_model(model, batch, meta.num_observed)
+        info.update(
+            checkpoint="best.pt",
+            best_epoch=int(checkpoint["epoch"]),
+            train_seconds=_train_seconds(directory / "metrics.jsonl"),
+        )
+    result = score(predictions, batch, meta.num_observed, meta.case_names)
+    if job.save_scenes:
+        rows = figure_scenes(test.data.case, test.data.interaction, len(meta.case_names))
+        subset = Predictions(predictions.pred_mean[rows], predictions.attention[rows])
+        with atomic_output(directory / "scenes.npz") as temp:
+            save_predictions(
+                temp,
+                subset,
+                collate_batch([test[i] for i in rows]),
+                meta.num_observed,
+                meta.dt,
+                meta.case_names,
+                meta.role_names,
+            )
+    info["eval_seconds"] = time.perf_counter() - started
+    with atomic_output(directory / "eval.json") as temp:
+        temp.write_text(json.dumps({**info, **result}, indent=1) + "\n")
+
+
+def _train_seconds(metrics: Path) -> float:
+    """Training wall time summed over the run's epochs (across resumes)."""
+    lines = metrics.read_text().splitlines() if metrics.is_file() else []
+    return float(sum(json.loads(line)["seconds"] for line in lines if line.strip()))
+
+
+# ---------------------------------------------------------------------------------- the cache
+def read_eval(job: Job) -> dict | None:
+    """The job's eval.json if it exists and belongs to the job (None: the job must run);
+    ReproductionError for an unreadable or foreign one."""
+    path = Path(job.run_dir) / "eval.json"
+    if not path.is_file():
+        return None
+    try:
+        result = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        message = f"cannot read cached {path} ({err}); delete it to redo that run"
+        raise ReproductionError(message) from None
+    want = {"variant": job.variant, "seed": job.seed}
+    if any(result.get(k) != v for k, v in want.items()):
+        raise ReproductionError(
+            f"cached {path} is not the result of {want}; delete it to redo that run"
+        )
+    if job.save_scenes and not (Path(job.run_dir) / "scenes.npz").is_file():
+        return None  # e.g. evaluated by hand: redo the evaluation to get the figure scenes
+    return result
+
+
+def collect(protocol: Protocol, out_dir: Path) -> tuple[RunRecord, ...]:
+    """One record per (setting, variant, seed) whose eval.json exists."""
+    records = []
+    for setting in protocol.settings:
+        for job in setting_jobs(protocol, setting, out_dir):
+            result = read_eval(job)
+            if result is not None:
+                records.append(RunRecord.from_eval(setting.name, job.variant, job.seed, result))
+    return tuple(records)
+
+
+def scene_files(protocol: Protocol, out_dir: Path) -> dict[str, dict[str, str]]:
+    """setting -> {variant: scenes.npz} for settings where every FIGURE_VARIANTS file exists."""
+    found = {}
+    for setting in protocol.settings:
+        spec = data_spec(protocol, setting)
+        files = {
+            v: run_dir(out_dir, spec, v, 0, protocol.epochs) / "scenes.npz" for v in FIGURE_VARIANTS
+        }
+        if all(path.is_file() for path in files.values()):
+            found[setting.name] = {v: str(path) for v, path in files.items()}
+    return found
+
+
+@dataclass(frozen=True)
+class RunCounts:
+    """What an invocation did with the datasets and runs of its protocol."""
+
+    datasets_generated: int
+    datasets_reused: int
+    runs: int  # every run of the protocol
+    reused: int  # runs whose eval.json was cached
+    trained: int
+    resumed: int
+    failed: int
+    failures: tuple[str, ...] = ()  # "run_dir: error" of each failed (diverged) run
+
+    def to_json(self) -> dict:
+        return {**asdict(self), "failures": list(self.failures)}
+
+
+@dataclass(frozen=True)
+class Invocation:
+    """One logged invocation that ran jobs into the cache."""
+
+    date: str
+    command: str
+    seconds: float
+    runs: int  # jobs run (trained or resumed; const_vel: evaluated)
+
+
+def execute(protocol: Protocol, out_dir: Path, jobs: int) -> RunCounts:
+    """Make the datasets, then train/evaluate every run the cache lacks."""
+    specs = unique([data_spec(protocol, s) for s in protocol.settings])
+    items = [(spec, str(data_path(out_dir, spec))) for spec in specs]
+    data_status = run_parallel(ensure_dataset, items, jobs, "datasets")
+    all_jobs = unique([j for s in protocol.settings for j in setting_jobs(protocol, s, out_dir)])
+    # Seed-major order: an interrupted reproduction leaves whole seeds (every setting and
+    # variant), so a rerun with a smaller seed count reports from the cache alone.
+    todo = sorted((job for job in all_jobs if read_eval(job) is None), key=lambda j: j.seed)
+    outcomes = run_parallel(run_job, todo, jobs, "runs")
+    statuses = [o.status for o in outcomes]
+    return RunCounts(
+        datasets_generated=data_status.count("generated"),
+        datasets_reused=data_status.count("reused"),
+        runs=len(all_jobs),
+        reused=len(all_jobs) - len(todo),
+        trained=statuses.count("trained"),
+        resumed=statuses.count("resumed"),
+        failed=statuses.count("failed"),
+        failures=tuple(
+            f"{job.run_dir}: {o.error}" for job, o in zip(todo, outcomes) if o.status == "failed"
+        ),
+    )
+
+
+def log_invocation(
+    out_dir: Path, command: str, seconds: float, counts: RunCounts
+) -> tuple[Invocation, ...]:
+    """Append this invocation to the cache's log if it ran any job; return every logged one,
+    so a report rebuilt from the cache can still give the wall time spent."""
+    path = out_dir / INVOCATION_LOG
+    ran = counts.trained + counts.resumed
+    if ran:
+        now = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+        entry = Invocation(now, command, round(seconds, 1), ran)
+        with open(path, "a") as stream:
+            stream.write(json.dumps(asdict(entry)) + "\n")
+    if not path.is_file():
+        return ()
+    lines = path.read_text().splitlines()
+    return tuple(Invocation(**json.loads(line)) for line in lines if line.strip())
+
+
+# ---------------------------------------------------------------------------------- the whole
+@dataclass(frozen=True)
+class Outcome:
+    """What `reproduce` did: the report written, its figure count, the runs, the wall time."""
+
+    report: Path
+    figures: int
+    counts: RunCounts
+    seconds: float
+
+
+def reproduce(
+    protocol: Protocol,
+    out_dir: Path,
+    report: Path,
+    jobs: int = 2,
+    command: str = "",
+    overwrite: bool = False,
+) -> Outcome:
+    """Run what the cache in `out_dir` lacks and write the report at `report` (a .md file;
+    results.json and results/ go beside it). `command` is how the report names the invocation.
+
+    Raises FileExistsError if the report exists and not `overwrite`, ReproductionError for an
+    unusable cache entry, RuntimeError if a dataset cannot be made; KeyboardInterrupt leaves
+    every finished run cached.
+    """
+    from pipeline.report.document import ReportInput, write_report
+
+    if report.exists() and not overwrite:
+        raise FileExistsError(f"{report} already exists")
+    started = time.perf_counter()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    report.parent.mkdir(parents=True, exist_ok=True)
+    counts = execute(protocol, out_dir, jobs)
+    history = log_invocation(out_dir, command, time.perf_counter() - started, counts)
+    source = ReportInput(
+        protocol=protocol,
+        runs=collect(protocol, out_dir),
+        data_paths={
+            s.name: str(data_path(out_dir, data_spec(protocol, s))) for s in protocol.settings
+        },
+        scene_files=scene_files(protocol, out_dir),
+        command=command,
+        counts=counts,
+        jobs=jobs,
+        seconds=time.perf_counter() - started,
+        history=history,
+    )
+    figures = write_report(source, report)
+    return Outcome(report, figures, counts, time.perf_counter() - started)

@@ -1,0 +1,290 @@
+"""pipeline.report: records, statistics, verdicts, tables and figures on hand-made numbers."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import write_predictions_npz
+from scipy import stats
+
+from pipeline.report import context, figures, markdown, statistics
+from pipeline.report.records import (
+    MEASURES,
+    CaseNames,
+    Difference,
+    Measure,
+    RunRecord,
+    Summary,
+    WelchTest,
+)
+from predictor.plots import load_predictions
+
+MAJOR_ADE = Measure("ade", "major")
+MINOR_ADE = Measure("ade", "minor")
+
+
+def fake_eval(ade: dict, fde: dict, accuracy: float = 0.5) -> dict:
+    """An eval.json of a halting-car setting with `go` as the major case."""
+    names = {"major": "go", "minor": "stop"}
+
+    def group(scale: float) -> dict:
+        cases = {names[r]: {"ade": scale * ade[r], "fde": scale * fde[r]} for r in names}
+        return {"cases": cases, "overall": {"ade": scale * ade["major"], "fde": 0.0}}
+
+    acc = {
+        "cases": {n: {"accuracy": accuracy, "mean_weight": accuracy / 2} for n in names.values()},
+        "overall": {"accuracy": accuracy, "mean_weight": accuracy / 2},
+    }
+    return {
+        "major_case": "go",
+        "case_names": ["stop", "go"],
+        "main_agents": group(1.0),
+        "all_agents": group(0.1),
+        "attention_accuracy": acc,
+        "train_seconds": 2.0,
+    }
+
+
+def hand_runs() -> list[RunRecord]:
+    rows = [  # variant, seed, major ADE, minor ADE (FDE = 2 x ADE)
+        ("ours", 0, 1.0, 2.0),
+        ("ours", 1, 3.0, 4.0),
+        ("s_attn", 0, 5.0, 8.0),
+        ("s_attn", 1, 7.0, 8.0),
+        ("const_vel", 0, 9.0, 9.0),
+    ]
+    return [
+        RunRecord.from_eval(
+            "hc_go", v, s, fake_eval({"major": a, "minor": m}, {"major": 2 * a, "minor": 2 * m})
+        )
+        for v, s, a, m in rows
+    ]
+
+
+# ---------------------------------------------------------------------------------- records
+def test_records_map_case_names_to_major_and_minor():
+    run = hand_runs()[0]
+    assert run.case_names == CaseNames("go", "stop")
+    assert run.values[Measure("ade", "major")] == 1.0
+    assert run.values[Measure("fde", "minor")] == 4.0
+    assert run.values[Measure("ade", "minor", "all_agents")] == pytest.approx(0.2)
+    assert run.values[Measure("attention_weight", "overall")] == 0.25
+    assert set(run.values) == set(MEASURES)
+
+
+def test_run_json_keeps_the_results_json_layout():
+    document = hand_runs()[1].to_json()
+    assert document["main_agents"]["major"] == {"ade": 3.0, "fde": 6.0}
+    assert document["all_agents"]["overall"]["ade"] == pytest.approx(0.3)
+    assert document["attention_accuracy"] == {"major": 0.5, "minor": 0.5, "overall": 0.5}
+    assert document["case_names"] == {"major": "go", "minor": "stop"}
+    assert (document["setting"], document["variant"], document["seed"]) == ("hc_go", "ours", 1)
+
+
+# ---------------------------------------------------------------------------------- statistics
+def test_summary_is_mean_and_sample_std():
+    summary = statistics.summarize([1.0, 2.0, None, 3.0, 4.0, float("nan")])
+    assert summary.n == 4 and summary.mean == pytest.approx(2.5)
+    assert summary.std == pytest.approx(math.sqrt(5.0 / 3.0))  # squared deviations 5, n-1 3
+    assert statistics.summarize([2.0]) == Summary(2.0, None, 1)
+    assert statistics.summarize([None]) == Summary(None, None, 0)
+
+
+def test_welch_test_matches_scipy_and_the_formula():
+    a, b = [0.51, 0.48, 0.55, 0.50, 0.47], [0.62, 0.70, 0.58, 0.66]
+    result = statistics.welch_test(a, b)
+    assert result.p == pytest.approx(stats.ttest_ind(a, b, equal_var=False).pvalue)
+    va, vb = np.var(a, ddof=1) / len(a), np.var(b, ddof=1) / len(b)
+    t = (np.mean(a) - np.mean(b)) / math.sqrt(va + vb)
+    df = (va + vb) ** 2 / (va**2 / (len(a) - 1) + vb**2 / (len(b) - 1))
+    assert result.t == pytest.approx(t)
+    assert result.p == pytest.approx(2 * stats.t.sf(abs(t), df))
+    assert statistics.welch_test([1.0], [2.0, 3.0]) == WelchTest(None, None)
+    assert statistics.welch_test([1.0, 1.0], [1.0, 1.0]) == WelchTest(None, None)  # no spread
+
+
+def test_aggregates_of_hand_made_runs():
+    results = statistics.analyse(hand_runs())
+    ours = results.summary("hc_go", "ours")
+    assert ours.runs == 2
+    assert ours[MAJOR_ADE] == Summary(2.0, math.sqrt(2.0), 2)  # 1 and 3: std = 2 / sqrt(2)
+    assert ours[Measure("attention_weight", "minor")] == Summary(0.25, 0.0, 2)
+    assert results.summary("hc_go", "const_vel")[MINOR_ADE] == Summary(9.0, None, 1)
+    assert results.summary("hc_go", "nonsmooth") is None
+    assert results.has_setting("hc_go") and not results.has_setting("hc_stop")
+
+
+def test_comparisons_of_hand_made_runs():
+    results = statistics.analyse(hand_runs())
+    assert set(results.comparisons) == {("hc_go", "s_attn")}  # the baseline is not compared
+    cell = results.comparison("hc_go", "s_attn")[MAJOR_ADE]
+    assert (cell.mean_ours, cell.mean_other) == (2.0, 6.0)
+    assert cell.test.p == pytest.approx(stats.ttest_ind([1, 3], [5, 7], equal_var=False).pvalue)
+    fde = results.comparison("hc_go", "s_attn")[Measure("fde", "major")]
+    assert fde.test.p == pytest.approx(stats.ttest_ind([2, 6], [10, 14], equal_var=False).pvalue)
+
+
+def test_better_verdicts():
+    assert statistics.better_verdict(1.0, 2.0, 0.001, 0.01) == "holds"
+    assert statistics.better_verdict(1.0, 2.0, 0.02, 0.01) == "not significant"
+    assert statistics.better_verdict(1.0, 2.0, None, 0.01) == "not significant"
+    assert statistics.better_verdict(2.0, 1.0, 0.001, 0.01) == "does not hold"
+    assert statistics.better_verdict(2.0, 2.0, 0.5, 0.01) == "does not hold"
+    assert statistics.better_verdict(None, 1.0, 0.5, 0.01) == "n/a"
+    cell = Difference(WelchTest(-5.0, 0.0004), 1.0, 2.0)
+    assert statistics.better(cell, 0.01).text == "holds (p<0.001)"
+
+
+@pytest.mark.parametrize(
+    "ours, other, p, text",
+    [
+        (1.1, 1.0, 0.4, "holds (no significant difference) (+10%, p=0.400)"),
+        (0.9, 1.0, 0.01, "holds (ours better) (-10%, p=0.010)"),
+        (1.5, 1.0, 0.01, "does not hold (+50%, p=0.010)"),
+        (1.5, 1.0, None, "holds (no significant difference) (+50%, p n/a)"),
+        (None, 1.0, 0.5, "n/a"),
+    ],
+)
+def test_comparable_verdicts(ours, other, p, text):
+    assert statistics.comparable(Difference(WelchTest(None, p), ours, other)).text == text
+
+
+def test_claims_table_rows_for_run_and_missing_comparisons():
+    results = statistics.analyse(hand_runs())
+    rows = statistics.claims(results, ["hc_go"], [])
+    assert [r.claim for r in rows][:4] == [c[2] for c in statistics.CLAIMS]
+    s_attn = rows[0].cells
+    p = stats.ttest_ind([1, 3], [5, 7], equal_var=False).pvalue  # 0.106: not < 0.01
+    assert s_attn[MAJOR_ADE].text == f"not significant (p={p:.3f})"
+    assert rows[1].cells[MAJOR_ADE].text == "n/a (not run)"  # nonsmooth was not run
+    assert rows[-1].setting == "size study"
+    assert rows[-1].cells[MAJOR_ADE].text == "n/a (needs two size settings)"
+    assert rows[0].to_json()["cells"]["major ade"] == s_attn[MAJOR_ADE].text
+
+
+def size_runs(ours_by_size: list[float]) -> list[RunRecord]:
+    runs = []
+    for k, ours in enumerate(ours_by_size):
+        for variant, ade in (("ours", ours), ("nonsmooth", 2.0)):
+            result = fake_eval({"major": ade, "minor": ade}, {"major": ade, "minor": ade})
+            runs.append(RunRecord.from_eval(f"size{k}", variant, 0, result))
+    return runs
+
+
+@pytest.mark.parametrize(
+    "ours_by_size, verdict",
+    [
+        ([1.0, 1.6, 1.9], "holds"),  # margins 1.0, 0.4, 0.1
+        ([1.0, 1.9, 1.6], "partly"),  # margins 1.0, 0.1, 0.4
+        ([1.9, 1.6, 1.0], "does not hold"),  # margins 0.1, 0.4, 1.0
+    ],
+)
+def test_size_claim_needs_a_shrinking_margin(ours_by_size, verdict):
+    results = statistics.analyse(size_runs(ours_by_size))
+    cells = statistics.size_claim(results, ["size0", "size1", "size2"])
+    assert len(cells) == 4 and all(v.verdict == verdict for v in cells.values())
+    margins = statistics.size_margins(results, ["size0", "size1", "missing"], MAJOR_ADE)
+    assert margins == [
+        pytest.approx(2.0 - ours_by_size[0]),
+        pytest.approx(2.0 - ours_by_size[1]),
+        None,
+    ]
+
+
+# ---------------------------------------------------------------------------------- tables
+def test_results_table_with_attention_columns():
+    results = statistics.analyse(hand_runs())
+    names = CaseNames("go", "stop")
+    lines = markdown.results_table(
+        results, "hc_go", ("ours", "nonsmooth", "const_vel"), "main_agents", names
+    ).splitlines()
+    assert lines[0].startswith("| variant | major (go) ADE | major (go) FDE | minor (stop) ADE")
+    assert "attn. weight major" in lines[0] and lines[0].endswith("| runs |")
+    assert lines[2].startswith("| Ours | 2.000 ± 1.414 | 4.000 ± 2.828 | 3.000 ± 1.414 |")
+    assert lines[2].count("0.250 ± 0.000") == 2 and lines[2].count("0.50 ± 0.00") == 2
+    assert lines[3] == "| Const-Vel | 9.000 | 18.000 | 9.000 | 18.000 | n/a | n/a | n/a | n/a | 1 |"
+    assert len(lines) == 4  # nonsmooth was not run
+
+
+def test_pvalue_table_gives_p_and_difference():
+    results = statistics.analyse(hand_runs())
+    row = markdown.pvalue_table(results, "hc_go").splitlines()[2]
+    p = stats.ttest_ind([1, 3], [5, 7], equal_var=False).pvalue
+    assert row.startswith(f"| Ours vs S-Attn | {p:.2g} (Δ -4.000 m) |")
+    assert "No comparison" in markdown.pvalue_table(results, "hc_stop")
+
+
+def test_history_line_sums_the_wall_time():
+    from pipeline.reproduction import Invocation
+
+    history = (Invocation("d1", "c1", 60.0, 3), Invocation("d2", "c2", 90.0, 1))
+    line = markdown.history_line(history)
+    assert line.startswith("- Training invocations logged in the cache: 2, 2.5 min wall")
+    assert "d1: 1.0 min, 3 runs, `c1`; d2: 1.5 min, 1 runs, `c2`" in line
+    assert markdown.history_line(()) == "- Training invocations logged in the cache: none"
+
+
+# ---------------------------------------------------------------------------------- figures
+def test_bar_inputs_from_hand_made_runs():
+    results = statistics.analyse(hand_runs())
+    bars = figures.bar_inputs(results, "hc_go", "ade", ("s_attn", "nonsmooth", "ours", "const_vel"))
+    assert bars.variants == ("s_attn", "ours", "const_vel")  # nonsmooth was not run
+    assert bars.cases == ("major", "minor")
+    np.testing.assert_allclose(bars.means, [[6.0, 8.0], [2.0, 3.0], [9.0, 9.0]])
+    root2 = math.sqrt(2.0)  # sample std of two values d apart is d / sqrt(2)
+    np.testing.assert_allclose(bars.errors, [[root2, 0.0], [root2, root2], [0.0, 0.0]])
+    fde = figures.bar_inputs(results, "hc_go", "fde", ("ours",))
+    np.testing.assert_allclose(fde.means, [[4.0, 6.0]])
+
+
+def test_size_series_from_hand_made_runs():
+    results = statistics.analyse(hand_runs())
+    mean, std = figures.series(results, ["hc_go", "missing"], "s_attn", Measure("fde", "minor"))
+    np.testing.assert_allclose(mean, [16.0, np.nan])  # 2 x minor ADE 8 in both seeds
+    np.testing.assert_allclose(std, [0.0, 0.0])
+
+
+def test_figures_are_saved_atomically(tmp_path, monkeypatch):
+    results = statistics.analyse(hand_runs())
+    fig = figures.bar_figure(results, "hc_go", ("ours", "s_attn"), CaseNames("go", "stop"), "t")
+    path = figures.save(fig, tmp_path / "bars.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    def broken(fig, path, dpi):
+        Path(path).write_bytes(b"partial")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(figures, "save_figure", broken)
+    with pytest.raises(OSError):
+        figures.save(fig, tmp_path / "other.png")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bars.png"]  # no partial, no temp
+
+
+def test_scene_figure_needs_the_same_scenes(tmp_path):
+    ours = load_predictions(write_predictions_npz(tmp_path / "a.npz", seed=0))
+    same = load_predictions(write_predictions_npz(tmp_path / "b.npz", seed=0))
+    other = load_predictions(write_predictions_npz(tmp_path / "c.npz", seed=1))
+    fig = figures.scene_figure(ours, same, 0, "scene")
+    assert len(fig.axes) == 3 and fig.axes[1].get_ylabel() == "attention"
+    with pytest.raises(ValueError, match="different scenes"):
+        figures.scene_figure(ours, other, 0, "scene")
+
+
+# ---------------------------------------------------------------------------------- context
+def test_dataset_info_counts_each_case_per_split(dataset_file):
+    info = context.dataset_info(str(dataset_file))
+    assert info.case_names == CaseNames("major", "minor")
+    # conftest: cases alternate 0 (major), 1 (minor); train 6, val 3, test 4 trajectories
+    assert [(c.major, c.minor) for c in info.counts.values()] == [(3, 3), (2, 1), (2, 2)]
+    assert list(info.counts) == ["train", "val", "test"]
+    assert info.training_pool.label == "4+5"
+
+
+def test_cpu_model_reads_cpuinfo_or_falls_back(tmp_path):
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text("processor\t: 0\nmodel name\t: Test CPU 3000\nflags\t: x\n")
+    assert context.cpu_model(cpuinfo) == "Test CPU 3000"
+    assert context.cpu_model(tmp_path / "missing") != ""
