@@ -23,8 +23,9 @@ import torch
 from pipeline.generation import GenerateConfig, generate_dataset
 from predictor.config import make_configs
 from predictor.data import TrajectoryDataset
-from predictor.evaluation import predict_const_vel, predict_model, score
+from predictor.evaluation import predict_baseline, predict_model, score
 from predictor.model import SmoothAttentionPredictor
+from predictor.predictions import Predictions
 
 
 def median_seconds(function, repeats: int) -> float:
@@ -51,18 +52,14 @@ def main() -> None:
     torch.manual_seed(0)
     model = SmoothAttentionPredictor(make_configs("ours")[0])
 
+    def scored(name: str, pred_mean, attention) -> None:
+        score(Predictions.from_split(dataset.data, meta, "test", name, pred_mean, attention))
+
     def run_model() -> None:
-        score(
-            predict_model(model, batch, meta.num_observed),
-            batch,
-            meta.num_observed,
-            meta.case_names,
-        )
+        scored("ours", *predict_model(model, batch, meta.num_observed))
 
     def run_const_vel() -> None:
-        score(
-            predict_const_vel(batch, meta.num_observed), batch, meta.num_observed, meta.case_names
-        )
+        scored("const_vel", *predict_baseline("const_vel", batch, meta.num_observed))
 
     with torch.inference_mode():
         run_model()  # warm-up

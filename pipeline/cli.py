@@ -5,9 +5,10 @@
 - `require_file(path)`: exit 2 unless `path` is an existing file.
 - `check_output(path, overwrite)`: exit 2 if the output exists (without overwrite) or its
   directory is missing.
-- `atomic_output(path)`: context manager yielding a temporary path beside `path`, renamed onto
-  `path` on success and removed on any failure (Ctrl-C included); a write that fails with an
-  OSError (read-only directory, full disk) exits 2 with `error: cannot write PATH: REASON`.
+- `writing(path)`: context manager yielding a temporary path beside `path`, renamed onto
+  `path` on success and removed on any failure (Ctrl-C included; `pipeline.files.atomic_output`);
+  a write that fails with an OSError (read-only directory, full disk) exits 2 with
+  `error: cannot write PATH: REASON`.
 - `run_main(main, argv)`: run a tool's main; a reader that closed the pipe (`tool | head`) ends
   it quietly with status 1 instead of a BrokenPipeError traceback.
 """
@@ -17,11 +18,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
-import secrets
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import NoReturn
+
+from pipeline.files import atomic_output
 
 
 def run_main(main: Callable[[list[str] | None], None], argv: list[str] | None = None) -> None:
@@ -73,22 +75,11 @@ def check_output(path: str | os.PathLike, overwrite: bool = False) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside `path`; on success it replaces `path`, else it is removed.
-
-    The temporary name keeps the target's suffix, so writers that infer the format from the file
-    name (e.g. matplotlib's savefig) still work. The block must only write the temporary file:
-    an OSError raised in it, or by the final rename, ends the program with one line
-    `error: cannot write PATH: REASON` and exit status 2 (`fail`).
-    """
-    target = Path(path)
-    temp = target.with_name(f".{target.stem}.{secrets.token_hex(6)}.tmp{target.suffix}")
+def writing(path: str | os.PathLike) -> Iterator[Path]:
+    """`pipeline.files.atomic_output` for a tool: an OSError raised in the block, or by the
+    final rename, ends the program with one line `error: cannot write PATH: REASON`, exit 2."""
     try:
-        yield temp
-        os.replace(temp, target)
-    except BaseException as err:
-        with contextlib.suppress(OSError):
-            temp.unlink(missing_ok=True)
-        if isinstance(err, OSError):
-            fail(f"cannot write {target}: {err.strerror or err}")
-        raise
+        with atomic_output(path) as temp:
+            yield temp
+    except OSError as err:
+        fail(f"cannot write {path}: {err.strerror or err}")

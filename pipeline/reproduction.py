@@ -16,7 +16,7 @@ invocation that ran jobs (date, command, wall seconds), for the report's wall ti
 hash the scenario, model and training configurations (a changed default starts new runs) but
 not the code: delete the cache after changing how experts, model or training behave.
 
-Interrupts: the pool's workers ignore SIGINT and SIGTERM (a terminal's Ctrl-C reaches the whole
+Interrupts (pipeline.pool): the workers ignore SIGINT and SIGTERM (a terminal's Ctrl-C reaches the whole
 process group); the parent, on any exception (KeyboardInterrupt included), sets a shared stop
 event. Each job checks it at safe points: before it starts, before every optimiser step and
 before the evaluation, so a stopped run keeps its last completed epoch (last.pt) and no file is
@@ -25,25 +25,19 @@ half written; a rerun resumes it.
 
 from __future__ import annotations
 
-import contextlib
 import datetime
 import hashlib
-import io
 import json
-import multiprocessing
-import signal
-import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TypeVar
 
 import numpy as np
-from tqdm import tqdm
 
-from pipeline.cli import atomic_output
+from pipeline.files import atomic_output
+from pipeline.generation import GenerateConfig, UnsafeExpertError, generate_dataset
+from pipeline.pool import check_stop, run_parallel
 from pipeline.report.records import RunRecord
 
 TRAINED_VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct")
@@ -170,24 +164,16 @@ class DataSpec:
             f"_test{self.num_test}_seed{self.seed}_{self.scenario_digest}"
         )
 
-    def argv(self, out: Path) -> list[str]:
-        """The same inputs as tools/generate.py arguments."""
-        return [
-            "--scenario",
+    def config(self) -> GenerateConfig:
+        """The generator configuration (validated)."""
+        return GenerateConfig.for_scenario(
             self.scenario,
-            "--major-case",
-            self.major_case,
-            "--num-major",
-            str(self.num_major),
-            "--num-minor",
-            str(self.num_minor),
-            "--num-test",
-            str(self.num_test),
-            "--seed",
-            str(self.seed),
-            "--out",
-            str(out),
-        ]
+            major_case=self.major_case,
+            num_major=self.num_major,
+            num_minor=self.num_minor,
+            num_test=self.num_test,
+            seed=self.seed,
+        )
 
 
 @dataclass(frozen=True)
@@ -276,108 +262,26 @@ def unique(items: list) -> list:
     return list(dict.fromkeys(items))
 
 
-# ---------------------------------------------------------------------------------- stopping
-class Stopped(KeyboardInterrupt):
-    """Raised in a worker at a safe point once the parent asked the jobs to stop."""
-
-
-_STOP = None  # the pool's stop event, in a worker process (set by _init_worker)
-
-
-def _init_worker(stop) -> None:
-    """Worker start: one torch thread; signals are the parent's business, the event is ours."""
-    import torch
-
-    global _STOP
-    _STOP = stop
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    torch.set_num_threads(1)
-
-
-def check_stop(*_) -> None:
-    """A safe point: raise Stopped if the parent set the stop event (any arguments ignored, so
-    it serves as training's step callback)."""
-    if _STOP is not None and _STOP.is_set():
-        raise Stopped
-
-
-@contextlib.contextmanager
-def _signals_blocked() -> Iterator[None]:
-    """Hold SIGINT and SIGTERM back in this thread; processes started meanwhile inherit the
-    block, so a Ctrl-C cannot reach a worker before it ignores the signal. A signal that
-    arrives meanwhile is delivered on leaving."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-
-
-Item = TypeVar("Item")
-Result = TypeVar("Result")
-
-
-def run_parallel(
-    function: Callable[[Item], Result], items: Sequence[Item], jobs: int, desc: str
-) -> list[Result]:
-    """function(item) for every item in `jobs` spawned processes; results in item order.
-
-    On any exception here (Ctrl-C included) the stop event is set: running jobs end at their
-    next safe point, queued ones never start, and the exception is re-raised once all stopped.
-    """
-    results: list = [None] * len(items)
-    if not items:
-        return results
-    context = multiprocessing.get_context("spawn")  # never fork a process that imported torch
-    stop = context.Event()
-    executor = ProcessPoolExecutor(
-        min(jobs, len(items)), mp_context=context, initializer=_init_worker, initargs=(stop,)
-    )
-    bar = tqdm(total=len(items), desc=desc, unit="job", file=sys.stderr, dynamic_ncols=True)
-    try:
-        with _signals_blocked():  # the workers start in submit
-            futures = {executor.submit(function, item): k for k, item in enumerate(items)}
-        for future in as_completed(futures):
-            results[futures[future]] = future.result()
-            bar.update()
-    except BaseException:
-        stop.set()
-        raise
-    finally:
-        bar.close()
-        executor.shutdown(wait=True, cancel_futures=True)
-    return results
-
-
 # ---------------------------------------------------------------------------------- jobs
 def ensure_dataset(item: tuple[DataSpec, str]) -> str:
     """Generate the dataset unless the cached file exists; returns "generated" or "reused".
 
-    Drives tools/generate.py (on sys.path when run from tools/) until generation is a library
-    call; raises RuntimeError with generate's last error line if it fails.
+    Raises RuntimeError naming the file if a cached one was made with other inputs or
+    generation fails.
     """
-    import generate
-
     from predictor.format import read_meta
 
     spec, path = item
     check_stop()
-    argv = spec.argv(Path(path))
-    expected = asdict(generate.config_from_args(generate.parse_args(argv)))
+    config = spec.config()
     if Path(path).is_file():
-        if read_meta(path).config.get("generator") != expected:
+        if read_meta(path).config.get("generator") != asdict(config):
             raise RuntimeError(f"cached dataset {path} was made with other inputs; delete it")
         return "reused"
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    captured = io.StringIO()
     try:
-        with contextlib.redirect_stderr(captured), contextlib.redirect_stdout(io.StringIO()):
-            generate.main(argv)
-    except SystemExit as exit_:
-        lines = captured.getvalue().strip().splitlines() or [f"exit status {exit_.code}"]
-        raise RuntimeError(f"generating {path} failed: {lines[-1]}") from None
+        generate_dataset(config, path, progress=False)
+    except (OSError, UnsafeExpertError) as err:
+        raise RuntimeError(f"generating {path} failed: {err}") from None
     return "generated"
 
 
@@ -426,25 +330,23 @@ def figure_scenes(case: np.ndarray, interaction: np.ndarray, num_cases: int) -> 
 
 
 def evaluate_job(job: Job) -> None:
-    """Score the run's best.pt (or the baseline) on the test split; eval.json is written last.
-
-    The same steps as tools/evaluate.py, until evaluation is one library call.
-    """
-    from predictor.data import TrajectoryDataset, collate_batch
-    from predictor.evaluation import (
-        Predictions,
-        load_model,
-        predict_const_vel,
-        predict_model,
-        save_predictions,
-        score,
-    )
+    """Score the run's best.pt (or the baseline) on the test split; eval.json is written last."""
+    from predictor.evaluation import evaluate_baseline, evaluate_run
 
     started = time.perf_counter()
     directory = Path(job.run_dir)
     directory.mkdir(parents=True, exist_ok=True)
-    test = TrajectoryDataset(job.data_path, "test")
-    meta, batch = test.meta, test.all()
+    if job.variant == BASELINE:
+        evaluation = evaluate_baseline(BASELINE, job.data_path, "test")
+        extra = {"epochs": 0, "train_seconds": 0.0}
+    else:
+        evaluation = evaluate_run(directory, job.data_path, "test", "best")
+        extra = {
+            "checkpoint": "best.pt",
+            "best_epoch": evaluation.source.epoch,
+            "train_seconds": _train_seconds(directory / "metrics.jsonl"),
+        }
+    meta, predictions = evaluation.meta, evaluation.predictions
     info = {
         "variant": job.variant,
         "seed": job.seed,
@@ -452,36 +354,16 @@ def evaluate_job(job: Job) -> None:
         "data": job.data_path,
         "major_case": meta.major_case,
         "case_names": list(meta.case_names),
-        "scenes": batch.batch_size,
+        "scenes": evaluation.scenes,
+        **extra,
     }
-    if job.variant == BASELINE:
-        predictions = predict_const_vel(batch, meta.num_observed)
-        info.update(epochs=0, train_seconds=0.0)
-    else:
-        model, checkpoint = load_model(directory / "best.pt")
-        predictions = predict_model(model, batch, meta.num_observed)
-        info.update(
-            checkpoint="best.pt",
-            best_epoch=int(checkpoint["epoch"]),
-            train_seconds=_train_seconds(directory / "metrics.jsonl"),
-        )
-    result = score(predictions, batch, meta.num_observed, meta.case_names)
     if job.save_scenes:
-        rows = figure_scenes(test.data.case, test.data.interaction, len(meta.case_names))
-        subset = Predictions(predictions.pred_mean[rows], predictions.attention[rows])
+        rows = figure_scenes(predictions.case, predictions.interaction, len(meta.case_names))
         with atomic_output(directory / "scenes.npz") as temp:
-            save_predictions(
-                temp,
-                subset,
-                collate_batch([test[i] for i in rows]),
-                meta.num_observed,
-                meta.dt,
-                meta.case_names,
-                meta.role_names,
-            )
+            evaluation.save_predictions(temp, rows)
     info["eval_seconds"] = time.perf_counter() - started
     with atomic_output(directory / "eval.json") as temp:
-        temp.write_text(json.dumps({**info, **result}, indent=1) + "\n")
+        temp.write_text(json.dumps({**info, **evaluation.scores}, indent=1) + "\n")
 
 
 def _train_seconds(metrics: Path) -> float:

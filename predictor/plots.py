@@ -234,13 +234,75 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
+def draw_attention(
+    ax: Axes,
+    pred: Predictions,
+    index: int,
+    agent: int,
+    target: int,
+    color: str | None = None,
+    label: str | None = None,
+    context: bool = True,
+) -> None:
+    """Draw the attention of `agent` on `target` over time in scene `index` into `ax`.
+
+    attention[t] is computed at step t (time t*dt) to predict step t+1. With `context`, also the
+    interaction period (shaded), the ground-truth label (dashed: 1 where `agent` attends to
+    `target`), the last observed step (vertical line) and the axis limits and labels; without,
+    only the curve, to overlay another model's attention in the same scene. The curve's colour
+    and label default to the target's role.
+    """
+    theta = pred.attention[index, :, agent, target]  # (T-1,)
+    time = np.arange(theta.shape[0]) * pred.dt  # (T-1,) [s]
+    if context:
+        for k, (first, last) in enumerate(_runs(pred.interaction[index])):
+            ax.axvspan(
+                (first - 0.5) * pred.dt,
+                (last + 0.5) * pred.dt,
+                color="#f2d7a6",
+                alpha=0.6,
+                zorder=0,
+                label="interaction period" if k == 0 else None,
+            )
+        label_on = (pred.attention_label[index, :-1, agent] == target).astype(float)  # (T-1,)
+        ax.step(
+            time,
+            label_on,
+            where="mid",
+            color="black",
+            linestyle="--",
+            linewidth=1.0,
+            label="ground truth",
+            zorder=2,
+        )
+    roles = pred.roles[index]
+    target_role = pred.role_names[roles[target]]
+    ax.plot(
+        time,
+        theta,
+        marker="o",
+        markersize=3,
+        color=color or role_color(target_role, roles[target]),
+        label=label or f"attention on agent {target} ({target_role})",
+        zorder=3,
+    )
+    if context:
+        ax.axvline(
+            (pred.num_observed - 1) * pred.dt,
+            color="black",
+            linewidth=1.0,
+            label="last observed step",
+        )
+        ax.set_xlim(-0.5 * pred.dt, (theta.shape[0] - 0.5) * pred.dt)
+        ax.set_ylim(-0.05, 1.05)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("attention")
+
+
 def plot_attention(pred: Predictions, index: int, agent: int, target: int) -> Figure:
     """Attention of `agent` on `target` over time in scene `index` (the paper's Fig. 6).
 
-    attention[t] is computed at step t (time t*dt) to predict step t+1; the vertical line marks
-    the last observed step, after which the model runs on its own predictions. The interaction
-    period is shaded; the dashed line is 1 where the ground-truth label says `agent` attends to
-    `target`.
+    See `draw_attention`; after the last observed step the model runs on its own predictions.
     """
     _check_index(pred, index)
     agents = pred.valid.shape[2]
@@ -249,53 +311,15 @@ def plot_attention(pred: Predictions, index: int, agent: int, target: int) -> Fi
             raise PlotInputError(f"{name} {value} out of range: the scenes have {agents} agents")
     if agent == target:
         raise PlotInputError("agent and target must differ")
-    theta = pred.attention[index, :, agent, target]  # (T-1,)
-    if not np.isfinite(theta).any():
+    if not np.isfinite(pred.attention[index, :, agent, target]).any():
         raise PlotInputError(
             "the predictions file has no attention for this scene (NaN), e.g. "
             "from a model without attention such as const_vel"
         )
-    time = np.arange(theta.shape[0]) * pred.dt  # (T-1,) [s]
-    roles = pred.roles[index]
     fig = new_figure(8.0, 3.2)
     ax = fig.subplots()
-    for k, (first, last) in enumerate(_runs(pred.interaction[index])):
-        ax.axvspan(
-            (first - 0.5) * pred.dt,
-            (last + 0.5) * pred.dt,
-            color="#f2d7a6",
-            alpha=0.6,
-            zorder=0,
-            label="interaction period" if k == 0 else None,
-        )
-    label_on = (pred.attention_label[index, :-1, agent] == target).astype(float)  # (T-1,)
-    ax.step(
-        time,
-        label_on,
-        where="mid",
-        color="black",
-        linestyle="--",
-        linewidth=1.0,
-        label="ground truth",
-        zorder=2,
-    )
-    target_role = pred.role_names[roles[target]]
-    ax.plot(
-        time,
-        theta,
-        marker="o",
-        markersize=3,
-        color=role_color(target_role, roles[target]),
-        label=f"attention on agent {target} ({target_role})",
-        zorder=3,
-    )
-    ax.axvline(
-        (pred.num_observed - 1) * pred.dt, color="black", linewidth=1.0, label="last observed step"
-    )
-    ax.set_xlim(-0.5 * pred.dt, (theta.shape[0] - 0.5) * pred.dt)
-    ax.set_ylim(-0.05, 1.05)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("attention")
+    draw_attention(ax, pred, index, agent, target)
+    roles = pred.roles[index]
     agent_role = pred.role_names[roles[agent]]
     ax.set_title(
         f"{_scene_name(pred, index)}: attention of agent {agent} ({agent_role}) on agent {target}",

@@ -20,7 +20,7 @@ from pipeline.report.records import (
     Summary,
     WelchTest,
 )
-from predictor.plots import load_predictions
+from predictor.predictions import load_predictions
 
 MAJOR_ADE = Measure("ade", "major")
 MINOR_ADE = Measure("ade", "minor")

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
 import time
 from pathlib import Path
 
@@ -24,12 +23,18 @@ import imageio.v3 as iio
 import numpy as np
 
 from carlo_lite import render_rgb
-from pipeline.cli import ArgumentParser, fail
+from pipeline.cli import ArgumentParser, fail, run_main, writing
+from pipeline.generation import GenerateConfig, generate_dataset
+from predictor.config import make_configs
+from predictor.evaluation import evaluate_baseline, evaluate_run
+from predictor.format import read_meta, read_split
+from predictor.plots import plot_attention, plot_predictions, plot_samples, save_figure
+from predictor.training import train
 from scenarios import SCENARIOS
 from scenarios.rollout import advance
 
 DEMO_SCENARIO = "double_merge"
-DEMO_DATA_ARGS = ["--num-major", "20", "--minor-ratio", "0.3", "--num-test", "10"]
+DEMO_DATA = {"num_major": 20, "minor_ratio": 0.3, "num_test": 10}  # small: trains in minutes
 
 
 def simulate_episode(out: Path, seed: int) -> Path:
@@ -47,10 +52,14 @@ def simulate_episode(out: Path, seed: int) -> Path:
     return out / "episode.gif"
 
 
-def run_step(title: str, argv: list[str], main) -> None:
-    """Run one tool's main() in-process, with a heading; its own summary line follows."""
-    print(f"== {title}", flush=True)
-    main(argv)
+def write_json(path: Path, value: dict) -> None:
+    with writing(path) as temp:
+        temp.write_text(json.dumps(value, indent=2) + "\n")
+
+
+def write_figure(path: Path, fig) -> None:
+    with writing(path) as temp:
+        save_figure(fig, temp)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -71,70 +80,29 @@ def main(argv: list[str] | None = None) -> None:
         shutil.rmtree(out)
     out.mkdir(parents=True)
 
-    import evaluate
-    import generate
-    import plot
-    import train
-
     print(f"== simulate: wrote {simulate_episode(out, args.seed)}", flush=True)
     data = out / "double_merge.h5"
+    print("== generate", flush=True)
+    config = GenerateConfig.for_scenario(DEMO_SCENARIO, **DEMO_DATA, seed=args.seed)
+    print(generate_dataset(config, data).summary(), flush=True)
+    print("== train", flush=True)
     run = out / "run_ours"
-    seed = ["--seed", str(args.seed)]
-    run_step(
-        "generate",
-        ["--scenario", DEMO_SCENARIO, *DEMO_DATA_ARGS, *seed, "--out", str(data)],
-        generate.main,
-    )
-    run_step(
-        "train",
-        [
-            "--data",
-            str(data),
-            "--variant",
-            "ours",
-            "--epochs",
-            str(args.epochs),
-            *seed,
-            "--out",
-            str(run),
-        ],
-        train.main,
-    )
-    run_step(
-        "evaluate ours",
-        [
-            "--run",
-            str(run),
-            "--data",
-            str(data),
-            "--save-predictions",
-            str(out / "predictions.npz"),
-        ],
-        evaluate.main,
-    )
-    run_step(
-        "evaluate const_vel",
-        ["--baseline", "const_vel", "--data", str(data), "--out", str(out / "eval_const_vel.json")],
-        evaluate.main,
-    )
+    model_cfg, train_cfg = make_configs("ours", epochs=args.epochs, seed=args.seed)
+    print(train(data, model_cfg, train_cfg, run).summary("ours"), flush=True)
+    print("== evaluate", flush=True)
+    ours = evaluate_run(run, data, "test")
+    const_vel = evaluate_baseline("const_vel", data, "test")
+    write_json(run / "eval.json", ours.to_dict())
+    write_json(out / "eval_const_vel.json", const_vel.to_dict())
+    with writing(out / "predictions.npz") as temp:
+        ours.save_predictions(temp)
+    for evaluation in (ours, const_vel):
+        print(f"{evaluation.predictor}: {evaluation.headline()}", flush=True)
     print("== plot", flush=True)
-    plot.main(["samples", str(data), "--out", str(out / "samples.png")])
-    plot.main(["predictions", str(out / "predictions.npz"), "--out", str(out / "predictions.png")])
-    plot.main(
-        [
-            "attention",
-            str(out / "predictions.npz"),
-            "--agent",
-            "0",
-            "--target",
-            "1",
-            "--out",
-            str(out / "attention.png"),
-        ]
-    )
-    ours = json.loads((run / "eval.json").read_text())
-    const_vel = json.loads((out / "eval_const_vel.json").read_text())
-    ade = [m["main_agents"]["overall"]["ade"] for m in (ours, const_vel)]
+    write_figure(out / "samples.png", plot_samples(read_split(data, "train"), read_meta(data)))
+    write_figure(out / "predictions.png", plot_predictions(ours.predictions, 0))
+    write_figure(out / "attention.png", plot_attention(ours.predictions, 0, 0, 1))
+    ade = [e.to_dict()["main_agents"]["overall"]["ade"] for e in (ours, const_vel)]
     print(
         f"demo done in {time.perf_counter() - started:.0f} s: test ADE of the main cars "
         f"{ade[0]:.2f} m (ours, {args.epochs} epochs) vs {ade[1]:.2f} m (constant velocity); "
@@ -143,4 +111,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main(main)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import torch
 
-from pipeline.cli import ArgumentParser, atomic_output, check_output, fail, require_file, run_main
+from pipeline.cli import ArgumentParser, check_output, fail, require_file, run_main, writing
 from predictor.baselines import BASELINES
 from predictor.evaluation import (
     CHECKPOINTS,
@@ -128,10 +128,10 @@ def main(argv: list[str] | None = None) -> None:
     result = evaluation.to_dict()
     print(format_table(result, evaluation.meta.case_names))
     if npz_out is not None:
-        with atomic_output(npz_out) as temp:
+        with writing(npz_out) as temp:
             evaluation.save_predictions(temp)
     if json_out is not None:
-        with atomic_output(json_out) as temp:
+        with writing(json_out) as temp:
             temp.write_text(json.dumps(result, indent=2) + "\n")
     written = ", ".join(str(p) for p in (json_out, npz_out) if p is not None) or "nothing written"
     print(

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.cli import ArgumentParser, atomic_output, check_output, fail
+from pipeline.cli import ArgumentParser, check_output, fail, writing
 from scenarios import SCENARIOS
 
 STEER_RAD = 0.12  # steering while an arrow key is held
@@ -189,7 +189,7 @@ def encode_video(frames: list[np.ndarray], suffix: str, fps: float) -> bytes:
 def write_video(path: Path, frames: list[np.ndarray], fps: float) -> None:
     """Encode the frames and write them to `path` atomically (no partial file on failure)."""
     data = encode_video(frames, path.suffix.lower(), fps)
-    with atomic_output(path) as temp:
+    with writing(path) as temp:
         temp.write_bytes(data)
 
 

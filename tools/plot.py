@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import argparse
 
-from pipeline.cli import ArgumentParser, atomic_output, check_output, fail, require_file, run_main
+from pipeline.cli import ArgumentParser, check_output, fail, require_file, run_main, writing
 from predictor.format import SPLITS, FormatError, read_meta, read_split
 from predictor.plots import (
     MAX_DPI,
@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> None:
     except (FormatError, PlotInputError, PredictionsError) as err:
         fail(str(err))
     try:
-        with atomic_output(out) as temp:
+        with writing(out) as temp:
             save_figure(fig, temp, dpi=args.dpi)
     except PlotInputError as err:
         fail(str(err))

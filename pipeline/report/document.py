@@ -16,13 +16,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pipeline.cli import atomic_output
+from pipeline.files import atomic_output
 from pipeline.report import figures, markdown
 from pipeline.report.context import DatasetInfo, MachineInfo, dataset_info, machine_info
 from pipeline.report.records import ClaimRow, Results, RunRecord
 from pipeline.report.statistics import STATISTICS, analyse, claims
 from predictor.format import read_meta, read_split
-from predictor.plots import load_predictions, plot_samples
+from predictor.plots import plot_samples
+from predictor.predictions import load_predictions
 
 if TYPE_CHECKING:
     from pipeline.reproduction import Invocation, Protocol, RunCounts

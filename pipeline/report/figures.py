@@ -17,10 +17,11 @@ from matplotlib.axes import Axes
 from matplotlib.colors import to_rgba
 from matplotlib.figure import Figure
 
-from pipeline.cli import atomic_output
+from pipeline.files import atomic_output
 from pipeline.report.records import CASES, LABELS, METRICS, CaseNames, Measure, Results
 from pipeline.report.statistics import p_text
-from predictor.plots import Predictions, new_figure, role_color, save_figure
+from predictor.plots import draw_attention, new_figure, role_color, save_figure
+from predictor.predictions import Predictions
 
 DPI = 110
 COLORS = {
@@ -207,46 +208,15 @@ def _trajectory_axes(ax: Axes, ours: Predictions, other: Predictions, index: int
     )
 
 
-def _shade(ax: Axes, interaction: np.ndarray, dt: float) -> None:
-    """Shade each run of True in `interaction` (T,)."""
-    padded = np.concatenate([[0], interaction.astype(np.int8), [0]])
-    edges = np.flatnonzero(np.diff(padded))
-    for k, (first, stop) in enumerate(zip(edges[::2], edges[1::2])):
-        ax.axvspan(
-            (first - 0.5) * dt,
-            (stop - 0.5) * dt,
-            color="#f2d7a6",
-            alpha=0.6,
-            zorder=0,
-            label="interaction period" if k == 0 else None,
-        )
-
-
 def _attention_axes(
     ax: Axes, ours: Predictions, other: Predictions, index: int, agent: int, target: int
 ) -> None:
     """Attention of `agent` on `target` over time for both variants, with the ground truth."""
-    time = np.arange(ours.attention.shape[1]) * ours.dt  # (T-1,) [s]
-    _shade(ax, ours.interaction[index], ours.dt)
-    label = (ours.attention_label[index, :-1, agent] == target).astype(float)  # (T-1,)
-    ax.step(
-        time, label, where="mid", color="black", linestyle="--", linewidth=1.0, label="ground truth"
-    )
-    for pred, variant in ((other, "s_attn"), (ours, "ours")):
-        ax.plot(
-            time,
-            pred.attention[index, :, agent, target],
-            color=COLORS[variant],
-            marker="o",
-            markersize=2.5,
-            label=LABELS[variant],
-        )
-    ax.axvline((ours.num_observed - 1) * ours.dt, color="black", linewidth=1.0)
+    draw_attention(ax, other, index, agent, target, COLORS["s_attn"], LABELS["s_attn"])
+    draw_attention(ax, ours, index, agent, target, COLORS["ours"], LABELS["ours"], context=False)
+    ax.set_xlabel("time [s] (vertical line: last observed step)")
     roles = ours.roles[index]
     names = [ours.role_names[roles[k]] for k in (agent, target)]
-    ax.set_ylim(-0.05, 1.05)
-    ax.set_ylabel("attention")
-    ax.set_xlabel("time [s] (vertical line: last observed step)")
     ax.set_title(
         f"attention of {names[0]} on {names[1]}", fontsize="small", color=role_color(names[0])
     )

@@ -1,0 +1,93 @@
+"""A process pool for long jobs that stops cleanly: `run_parallel(function, items, jobs, desc)`.
+
+Workers are spawned (never forked from a process that imported torch), run one torch thread and
+ignore SIGINT and SIGTERM (a terminal's Ctrl-C reaches the whole process group); the parent, on
+any exception (KeyboardInterrupt included), sets a shared stop event, and each job calls
+`check_stop()` at its safe points, so no job is killed halfway through a write.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import signal
+import sys
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from typing import TypeVar
+
+from tqdm import tqdm
+
+
+class Stopped(KeyboardInterrupt):
+    """Raised in a worker at a safe point once the parent asked the jobs to stop."""
+
+
+_STOP = None  # the pool's stop event, in a worker process (set by _init_worker)
+
+
+def _init_worker(stop) -> None:
+    """Worker start: one torch thread; signals are the parent's business, the event is ours."""
+    import torch
+
+    global _STOP
+    _STOP = stop
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    torch.set_num_threads(1)
+
+
+def check_stop(*_) -> None:
+    """A safe point: raise Stopped if the parent set the stop event (any arguments ignored, so
+    it serves as training's step callback)."""
+    if _STOP is not None and _STOP.is_set():
+        raise Stopped
+
+
+@contextlib.contextmanager
+def _signals_blocked() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM back in this thread; processes started meanwhile inherit the
+    block, so a Ctrl-C cannot reach a worker before it ignores the signal. A signal that
+    arrives meanwhile is delivered on leaving."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+Item = TypeVar("Item")
+Result = TypeVar("Result")
+
+
+def run_parallel(
+    function: Callable[[Item], Result], items: Sequence[Item], jobs: int, desc: str
+) -> list[Result]:
+    """function(item) for every item in `jobs` spawned processes; results in item order.
+
+    On any exception here (Ctrl-C included) the stop event is set: running jobs end at their
+    next safe point, queued ones never start, and the exception is re-raised once all stopped.
+    """
+    results: list = [None] * len(items)
+    if not items:
+        return results
+    context = multiprocessing.get_context("spawn")  # never fork a process that imported torch
+    stop = context.Event()
+    executor = ProcessPoolExecutor(
+        min(jobs, len(items)), mp_context=context, initializer=_init_worker, initargs=(stop,)
+    )
+    bar = tqdm(total=len(items), desc=desc, unit="job", file=sys.stderr, dynamic_ncols=True)
+    try:
+        with _signals_blocked():  # the workers start in submit
+            futures = {executor.submit(function, item): k for k, item in enumerate(items)}
+        for future in as_completed(futures):
+            results[futures[future]] = future.result()
+            bar.update()
+    except BaseException:
+        stop.set()
+        raise
+    finally:
+        bar.close()
+        executor.shutdown(wait=True, cancel_futures=True)
+    return results
