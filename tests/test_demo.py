@@ -1,0 +1,65 @@
+"""tools/demo.py, the README's main job: one short run end to end, every output read back."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+from conftest import REPO_ROOT, tool_env
+
+from predictor.baselines import constant_velocity
+from predictor.format import read_meta, read_split
+from predictor.predictions import load_predictions
+
+
+def test_demo_writes_every_output_and_reports_both_predictors(tmp_path):
+    out = tmp_path / "demo"
+    out.mkdir()
+    (out / "stale.txt").write_text("from an earlier run")
+    completed = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "tools" / "demo.py"), "--out", str(out), "--epochs", "1"],
+        capture_output=True,
+        text=True,
+        env=tool_env(),
+        timeout=600,
+    )
+    assert completed.returncode == 0, completed.stderr
+    last = completed.stdout.strip().splitlines()[-1]
+    assert last.startswith("demo done in ") and last.endswith(f"results in {out}/")
+
+    expected = {
+        "episode.png",
+        "episode.gif",
+        "double_merge.h5",
+        "run_ours",
+        "predictions.npz",
+        "eval_const_vel.json",
+        "samples.png",
+        "predictions.png",
+        "attention.png",
+    }
+    assert {p.name for p in out.iterdir()} == expected  # the stale file went with the old run
+    for name in ("episode.png", "samples.png", "predictions.png", "attention.png"):
+        assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "episode.gif").read_bytes()[:6] == b"GIF89a"
+
+    data = out / "double_merge.h5"
+    meta, test = read_meta(data), read_split(data, "test")
+    assert test.n == 20  # the demo's 10 test trajectories per case
+    predictions = load_predictions(out / "predictions.npz")
+    assert predictions.predictor == "ours" and predictions.n == test.n
+    np.testing.assert_array_equal(predictions.true_xy, test.states[..., :2])
+
+    # the baseline's main-car ADE, computed here from the test split (every car is present)
+    assert test.valid.all()
+    truth = test.states[:, meta.num_observed :, :, :2]
+    pred = constant_velocity(test.states[..., :2], test.valid, meta.num_observed)
+    error = np.linalg.norm(pred - truth, axis=-1)[:, :, :2]  # (n, T_pred, 2): the main cars
+    ade = float(error[test.valid[:, meta.num_observed :, :2]].mean())
+    const_vel = json.loads((out / "eval_const_vel.json").read_text())
+    assert np.isclose(const_vel["main_agents"]["overall"]["ade"], ade, rtol=1e-5)
+    ours = json.loads((out / "run_ours" / "eval.json").read_text())
+    assert np.isfinite(ours["main_agents"]["overall"]["ade"])
+    assert f"{ade:.2f} m (constant velocity)" in last
