@@ -16,11 +16,11 @@ invocation that ran jobs (date, command, wall seconds), for the report's wall ti
 hash the scenario, model and training configurations (a changed default starts new runs) but
 not the code: delete the cache after changing how experts, model or training behave.
 
-Interrupts (pipeline.pool): the workers ignore SIGINT and SIGTERM (a terminal's Ctrl-C reaches the whole
-process group); the parent, on any exception (KeyboardInterrupt included), sets a shared stop
-event. Each job checks it at safe points: before it starts, before every optimiser step and
-before the evaluation, so a stopped run keeps its last completed epoch (last.pt) and no file is
-half written; a rerun resumes it.
+Interrupts (pipeline.pool): the workers ignore SIGINT and SIGTERM (a terminal's Ctrl-C reaches
+the whole process group); the parent, on any exception (KeyboardInterrupt included), sets a
+shared stop event. Each job checks it at safe points: before it starts, before every optimiser
+step and before the evaluation, so a stopped run keeps its last completed epoch (last.pt) and no
+file is half written; a rerun resumes it.
 """
 
 from __future__ import annotations
