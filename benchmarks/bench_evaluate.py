@@ -5,7 +5,8 @@ Generates the default Double Merge test set (50 major + 50 minor scenes, 60 step
 then times, median of --repeats: the predictor (untrained default `ours` model; the cost does
 not depend on the weights) predicting every test scene from its 15 observed steps with
 fed-back means plus scoring (ADE/FDE per case and group, attention accuracy), and the
-constant-velocity baseline with the same scoring. Reading the file is timed separately.
+constant-velocity baseline with the same scoring, and the ridge baseline fitted on the training
+split (cross-validated) and scored. Reading the file is timed separately.
 The last line of stdout is one JSON object {"benchmark": "evaluate", ...}.
 """
 
@@ -48,6 +49,7 @@ def main() -> None:
         generate_dataset(GenerateConfig.for_scenario("double_merge"), path, progress=False)
         load_s = median_seconds(lambda: TrajectoryDataset(path, "test").all(), args.repeats)
         dataset = TrajectoryDataset(path, "test")
+        train = TrajectoryDataset(path, "train").data
     meta, batch = dataset.meta, dataset.all()
     torch.manual_seed(0)
     model = SmoothAttentionPredictor(make_configs("ours")[0])
@@ -59,12 +61,16 @@ def main() -> None:
         scored("ours", *predict_model(model, batch, meta.num_observed))
 
     def run_const_vel() -> None:
-        scored("const_vel", *predict_baseline("const_vel", batch, meta.num_observed))
+        scored("const_vel", *predict_baseline("const_vel", dataset.data, meta)[:2])
+
+    def run_ridge() -> None:  # fitted on the training split (cross-validated), then scored
+        scored("ridge", *predict_baseline("ridge", dataset.data, meta, train)[:2])
 
     with torch.inference_mode():
         run_model()  # warm-up
         model_s = median_seconds(run_model, args.repeats)
     const_vel_s = median_seconds(run_const_vel, args.repeats)
+    ridge_s = median_seconds(run_ridge, args.repeats)
     scenes = batch.batch_size
     record = {
         "benchmark": "evaluate",
@@ -78,11 +84,14 @@ def main() -> None:
         "model_scenes_per_s": round(scenes / model_s, 1),
         "const_vel_s": round(const_vel_s, 4),
         "const_vel_scenes_per_s": round(scenes / const_vel_s, 1),
+        "ridge_fit_and_score_s": round(ridge_s, 3),
+        "ridge_train_scenes": train.n,
     }
     print(
         f"evaluate double_merge test set ({scenes} scenes): model {model_s:.2f} s = "
         f"{scenes / model_s:.1f} scenes/s, constant velocity {scenes / const_vel_s:,.0f} "
-        f"scenes/s, loading {load_s:.3f} s"
+        f"scenes/s, ridge fit on {train.n} training scenes and scored in {ridge_s:.2f} s, "
+        f"loading {load_s:.3f} s"
     )
     print(json.dumps(record))
 

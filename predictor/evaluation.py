@@ -23,10 +23,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from predictor.baselines import BASELINES, constant_velocity
+from predictor.baselines import BASELINES, RidgeBaseline, RidgeConfig, constant_velocity
 from predictor.config import ModelConfig, model_config_from_dict
 from predictor.data import Batch, TrajectoryDataset
-from predictor.format import DatasetMeta
+from predictor.format import DatasetMeta, TrajectorySet
 from predictor.metrics import (
     attention_accuracy,
     displacement_metrics,
@@ -106,13 +106,33 @@ def predict_model(
     return np.concatenate(means), np.concatenate(attentions)
 
 
-def predict_baseline(name: str, batch: Batch, num_observed: int) -> tuple[np.ndarray, np.ndarray]:
-    """(pred_mean, attention) of a baseline, shaped as `predict_model`'s; attention is NaN."""
+def predict_baseline(
+    name: str, data: TrajectorySet, meta: DatasetMeta, fit: TrajectorySet | None = None
+) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """(pred_mean, attention, details) of baseline `name` on `data`, shaped as `predict_model`'s
+    outputs; the attention is NaN. A ridge baseline is fitted on `fit` first (required for them);
+    `details` describes the fit (empty for const_vel)."""
     if name not in BASELINES:
         raise EvaluationError(f"unknown baseline {name!r}; choose from {', '.join(BASELINES)}")
-    pred = constant_velocity(batch.positions.numpy(), batch.valid.numpy(), num_observed)
-    shape = (batch.batch_size, batch.num_steps - 1, batch.num_agents, batch.num_agents)
-    return pred, np.full(shape, np.nan, dtype=np.float32)
+    shape = (data.n, data.num_steps - 1, data.num_agents, data.num_agents)
+    attention = np.full(shape, np.nan, dtype=np.float32)
+    if name == "const_vel":
+        return constant_velocity(data.states[..., :2], data.valid, meta.num_observed), attention, {}
+    if fit is None or fit.n == 0:
+        raise EvaluationError(f"the {name} baseline needs training scenes to fit on")
+    try:
+        ridge = RidgeBaseline(RidgeConfig.named(name)).fit(
+            fit.states, fit.valid, fit.attention, fit.roles, meta.num_observed, meta.dt
+        )
+    except ValueError as err:
+        raise EvaluationError(f"cannot fit the {name} baseline: {err}") from None
+    pred = ridge.predict(data.states, data.valid, data.attention, data.roles)
+    details = {
+        "fit_scenes": fit.n,
+        "history_steps": ridge.history,
+        "alpha": {meta.role_names[role]: alpha for role, alpha in sorted(ridge.alpha.items())},
+    }
+    return pred, attention, details
 
 
 def score(predictions: Predictions) -> dict:
@@ -153,6 +173,7 @@ class Evaluation:
     scores: dict  # main_agents, all_agents, attention_accuracy (see `score`)
     predictions: Predictions  # every scene of the split, in file order
     source: RunSource | None = None  # None for a baseline
+    baseline: dict[str, Any] | None = None  # a fitted baseline's fit: split, scenes, alpha...
 
     @property
     def split(self) -> str:
@@ -182,6 +203,8 @@ class Evaluation:
                 epoch=source.epoch,
                 train_data=source.train_data,
             )
+        if self.baseline is not None:
+            info["baseline_fit"] = self.baseline
         return {**info, **self.scores}
 
     def headline(self) -> str:
@@ -230,16 +253,25 @@ def evaluate_run(
     return _evaluation(dataset, variant, pred_mean, attention, source)
 
 
-def evaluate_baseline(name: str, data_path: str | os.PathLike, split: str = "test") -> Evaluation:
-    """Score the baseline `name` (one of predictor.baselines.BASELINES) on a split.
+def evaluate_baseline(
+    name: str, data_path: str | os.PathLike, split: str = "test", fit_split: str = "train"
+) -> Evaluation:
+    """Score the baseline `name` (one of predictor.baselines.BASELINES) on a split; a ridge
+    baseline is first fitted on `fit_split` of the same file.
 
-    Raises EvaluationError for an unknown name or an empty split, FormatError for a bad file.
+    Raises EvaluationError for an unknown name, an empty split or a ridge baseline that cannot
+    be fitted, FormatError for a bad file.
     """
     if name not in BASELINES:
         raise EvaluationError(f"unknown baseline {name!r}; choose from {', '.join(BASELINES)}")
     dataset = _load_split(data_path, split)
-    pred_mean, attention = predict_baseline(name, dataset.all(), dataset.meta.num_observed)
-    return _evaluation(dataset, name, pred_mean, attention, None)
+    fit = None
+    if name != "const_vel":
+        fit = dataset.data if fit_split == split else _load_split(data_path, fit_split).data
+    pred_mean, attention, details = predict_baseline(name, dataset.data, dataset.meta, fit)
+    if details:
+        details = {"fit_split": fit_split, **details}
+    return _evaluation(dataset, name, pred_mean, attention, None, details)
 
 
 def check_data_matches(
@@ -281,6 +313,7 @@ def _evaluation(
     pred_mean: np.ndarray,
     attention: np.ndarray,
     source: RunSource | None,
+    baseline: dict[str, Any] | None = None,
 ) -> Evaluation:
     predictions = Predictions.from_split(
         dataset.data, dataset.meta, dataset.split, predictor, pred_mean, attention
@@ -292,4 +325,5 @@ def _evaluation(
         scores=score(predictions),
         predictions=predictions,
         source=source,
+        baseline=baseline or None,
     )

@@ -137,6 +137,34 @@ def test_const_vel_baseline_and_its_nan_attention(smoke, tmp_path: Path):
         assert np.isnan(npz["attention"]).all() and set(npz.files) == NPZ_KEYS
 
 
+def test_ridge_baseline_is_fitted_on_the_train_split_and_matches_the_library(smoke, tmp_path):
+    from predictor.evaluation import evaluate_baseline
+
+    out = run_tool(
+        "evaluate.py",
+        "--baseline",
+        "ridge_labelled",
+        "--data",
+        smoke["data"],
+        "--out",
+        tmp_path / "ridge.json",
+        "--save-predictions",
+        tmp_path / "ridge.npz",
+    )
+    assert out.returncode == 0, out.stderr
+    result = json.loads((tmp_path / "ridge.json").read_text())
+    assert result["predictor"] == "ridge_labelled" and result["scenes"] == 4
+    fit = result["baseline_fit"]
+    assert fit["fit_split"] == "train" and fit["fit_scenes"] == 6
+    assert fit["history_steps"] == 4  # the default 12, capped at num_observed - 1
+    assert set(fit["alpha"]) <= {"leader", "follower", "distractor"}
+    library = evaluate_baseline("ridge_labelled", smoke["data"], "test")
+    assert library.to_dict()["main_agents"] == result["main_agents"]
+    with np.load(tmp_path / "ridge.npz") as npz:  # the same predictions in another process
+        np.testing.assert_array_equal(npz["pred_mean"], library.predictions.pred_mean)
+        assert np.isnan(npz["attention"]).all()
+
+
 def test_closed_stdout_ends_quietly(smoke):
     """`evaluate.py ... | head -0`: the reader is gone before the table is written."""
     read_end, write_end = os.pipe()

@@ -1,8 +1,14 @@
-"""Evaluate a trained run (or the constant-velocity baseline) on a dataset split.
+"""Evaluate a trained run or a baseline on a dataset split.
 
 Examples:
     python tools/evaluate.py --run runs/ours_s0 --data data/double_merge.h5
     python tools/evaluate.py --baseline const_vel --data data/double_merge.h5 --out cv.json
+    python tools/evaluate.py --baseline ridge --data data/double_merge.h5
+
+Baselines (predictor/baselines.py): `const_vel` (constant velocity); `ridge` (ridge regression
+on the agent's own observed history, in its own frame, fitted on the file's train split with
+the regularisation chosen by cross-validation); `ridge_nearest`, `ridge_labelled` (oracle) and
+`ridge_random` add one other agent's history: the nearest, the labelled one, a random one.
 
 Predicts every scene of the split (default test) from its observed steps, feeding back the mean
 of each predicted Gaussian, and reports ADE/FDE [m] per case and overall for the main agents
@@ -37,7 +43,11 @@ def parse_args(argv: list[str] | None = None):
     parser = ArgumentParser(prog="evaluate.py", description="Evaluate trajectory predictions.")
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--run", help="run directory written by tools/train.py")
-    source.add_argument("--baseline", choices=BASELINES, help="a baseline without training")
+    source.add_argument(
+        "--baseline",
+        choices=BASELINES,
+        help="a baseline: no training run (ridge ones fit on the train split in seconds)",
+    )
     parser.add_argument("--data", required=True, help="dataset file (HDF5, schema v1)")
     parser.add_argument(
         "--split",

@@ -1,0 +1,163 @@
+"""The ridge baseline against closed-form motion: straight lines, constant acceleration in any
+direction, and a future decided by another agent that only the right neighbour features reveal."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from predictor.baselines import (
+    BASELINES,
+    RIDGE_BASELINES,
+    RidgeBaseline,
+    RidgeConfig,
+    constant_velocity,
+)
+
+DT = 0.2
+OBSERVED = 8
+STEPS = 14  # 6 predicted
+
+
+def kinematic_states(
+    start: np.ndarray, heading: np.ndarray, speed: np.ndarray, accel: np.ndarray
+) -> np.ndarray:
+    """(n, T, N, 4) states of agents moving along their heading with constant acceleration:
+    x(t) = x0 + (v t + a t^2 / 2) u, u the unit heading vector (closed form)."""
+    t = np.arange(STEPS) * DT  # (T,)
+    travel = speed[:, None] * t[None, :, None] + 0.5 * accel[:, None] * t[None, :, None] ** 2
+    direction = np.stack([np.cos(heading), np.sin(heading)], -1)  # (n, N, 2)
+    xy = start[:, None] + travel[..., None] * direction[:, None]  # (n, T, N, 2)
+    heading_t = np.broadcast_to(heading[:, None], travel.shape)
+    speed_t = speed[:, None] + accel[:, None] * t[None, :, None]
+    return np.concatenate([xy, heading_t[..., None], speed_t[..., None]], -1).astype(np.float64)
+
+
+def random_agents(rng: np.random.Generator, n: int, num_agents: int, accel_scale: float):
+    start = rng.uniform(-50, 50, (n, num_agents, 2))
+    heading = rng.uniform(-np.pi, np.pi, (n, num_agents))
+    speed = rng.uniform(5, 15, (n, num_agents))
+    accel = rng.uniform(-accel_scale, accel_scale, (n, num_agents))
+    return kinematic_states(start, heading, speed, accel)
+
+
+def fitted(states, roles, config=RidgeConfig(), attention=None, valid=None):
+    valid = np.ones(states.shape[:3], bool) if valid is None else valid
+    attention = np.full(states.shape[:3], -1, np.int16) if attention is None else attention
+    return RidgeBaseline(config).fit(states, valid, attention, roles, OBSERVED, DT)
+
+
+def predict(model, states, roles, attention=None, valid=None):
+    valid = np.ones(states.shape[:3], bool) if valid is None else valid
+    attention = np.full(states.shape[:3], -1, np.int16) if attention is None else attention
+    return model.predict(states, valid, attention, roles)
+
+
+def test_baseline_names_map_to_ridge_configurations():
+    assert set(BASELINES) == {"const_vel", *RIDGE_BASELINES}
+    assert RidgeConfig.named("ridge_labelled").neighbours == "labelled"
+    with pytest.raises(ValueError, match="not a ridge baseline"):
+        RidgeConfig.named("const_vel")
+    for bad in ({"neighbours": "psychic"}, {"history_steps": 1}, {"folds": 1}, {"alphas": ()}):
+        with pytest.raises(ValueError):
+            RidgeConfig(**bad)
+
+
+def test_constant_speed_agents_are_predicted_exactly():
+    rng = np.random.default_rng(0)
+    train, test = random_agents(rng, 30, 3, 0.0), random_agents(rng, 10, 3, 0.0)
+    roles = np.zeros((30, 3), np.int8)
+    model = fitted(train, roles)
+    pred = predict(model, test, roles[:10])
+    np.testing.assert_allclose(pred, test[:, OBSERVED:, :, :2], atol=1e-4)
+    cv = constant_velocity(test[..., :2], np.ones(test.shape[:3], bool), OBSERVED)
+    np.testing.assert_allclose(pred, cv, atol=1e-4)
+
+
+def test_constant_acceleration_in_any_direction_is_learnt_from_the_history():
+    """The offset from constant velocity is linear in the acceleration, which the history's
+    second differences reveal; headings are random, so only an agent-centric frame makes one
+    linear model fit all agents."""
+    rng = np.random.default_rng(1)
+    train, test = random_agents(rng, 60, 2, 2.0), random_agents(rng, 20, 2, 2.0)
+    roles = np.zeros((60, 2), np.int8)
+    model = fitted(train, roles, RidgeConfig(history_steps=4))
+    pred = predict(model, test, roles[:20])
+    truth = test[:, OBSERVED:, :, :2]
+    cv = constant_velocity(test[..., :2], np.ones(test.shape[:3], bool), OBSERVED)
+    cv_error = np.linalg.norm(cv - truth, axis=-1).mean()
+    ridge_error = np.linalg.norm(pred - truth, axis=-1).mean()
+    assert cv_error > 0.3  # not trivial: constant velocity is off by 0.46 m on average
+    assert ridge_error < 2e-3 * cv_error
+    assert model.history == 4
+
+
+def decided_by_neighbour(rng: np.random.Generator, n: int):
+    """Agent 0 drives straight, then drifts sideways in proportion to agent 1's lateral offset
+    at the last observed step (as if it made room); agents 1-3 drive straight. Agent 0's label
+    is agent 1 throughout, and agent 1 is its nearest neighbour."""
+    states = random_agents(rng, n, 4, 0.0)
+    heading = states[:, 0, 0, 2]  # (n,)
+    normal = np.stack([-np.sin(heading), np.cos(heading)], -1)  # (n, 2) agent 0's left
+    t0 = OBSERVED - 1
+    lateral = rng.uniform(-3.0, 3.0, n)
+    ahead = np.stack([np.cos(heading), np.sin(heading)], -1)
+    states[:, :, 1, :2] = states[:, :, 0, :2] + (6.0 * ahead + lateral[:, None] * normal)[:, None]
+    states[:, :, 1, 2:] = states[:, :, 0, 2:]
+    for agent in (2, 3):  # far away
+        states[:, :, agent, :2] += 200.0
+    k = np.arange(1, STEPS - t0)  # steps after the last observed one
+    drift = 0.05 * lateral[:, None] * k[None] ** 2  # (n, P) [m]
+    states[:, t0 + 1 :, 0, :2] += drift[..., None] * normal[:, None]
+    attention = np.full(states.shape[:3], -1, np.int16)
+    attention[:, :, 0] = 1
+    roles = np.tile(np.array([0, 1, 2, 2], np.int8), (n, 1))
+    return states, attention, roles
+
+
+@pytest.mark.parametrize(
+    ("neighbours", "informative"),
+    [("none", False), ("random", False), ("labelled", True), ("nearest", True)],
+)
+def test_only_the_deciding_neighbour_explains_the_future(neighbours, informative):
+    rng = np.random.default_rng(2)
+    train, train_attention, train_roles = decided_by_neighbour(rng, 80)
+    test, test_attention, test_roles = decided_by_neighbour(rng, 30)
+    config = RidgeConfig(history_steps=4, neighbours=neighbours)
+    model = fitted(train, train_roles, config, train_attention)
+    pred = predict(model, test, test_roles, test_attention)
+    error = np.linalg.norm(pred[:, :, 0] - test[:, OBSERVED:, 0, :2], axis=-1).mean()
+    if informative:
+        assert error < 0.01
+    else:  # the drift's sign and size are unknowable: the error stays near the drift itself
+        assert error > 0.3
+
+
+def test_incomplete_history_falls_back_to_constant_velocity_and_fitting_is_deterministic():
+    rng = np.random.default_rng(3)
+    train, test = random_agents(rng, 40, 3, 2.0), random_agents(rng, 10, 3, 2.0)
+    roles = np.zeros((40, 3), np.int8)
+    valid = np.ones(test.shape[:3], bool)
+    valid[:, 2, 1] = False  # agent 1 missed a step early in its history (history_steps=4 ok)
+    valid[:, OBSERVED - 3, 2] = False  # agent 2 missed one inside the history window
+    first = predict(
+        fitted(train, roles, RidgeConfig(history_steps=4)), test, roles[:10], None, valid
+    )
+    again = predict(
+        fitted(train, roles, RidgeConfig(history_steps=4)), test, roles[:10], None, valid
+    )
+    np.testing.assert_array_equal(first, again)
+    cv = constant_velocity(test[..., :2], valid, OBSERVED)
+    np.testing.assert_array_equal(first[:, :, 2], cv[:, :, 2])
+    assert np.abs(first[:, :, 1] - cv[:, :, 1]).max() > 0.01  # agent 1 still uses the model
+
+
+def test_refuses_too_short_observations_and_unfitted_use():
+    states = random_agents(np.random.default_rng(4), 5, 2, 0.0)
+    roles = np.zeros((5, 2), np.int8)
+    valid = np.ones(states.shape[:3], bool)
+    attention = np.full(states.shape[:3], -1, np.int16)
+    with pytest.raises(ValueError, match="fitted"):
+        RidgeBaseline().predict(states, valid, attention, roles)
+    with pytest.raises(ValueError, match="at least 3 observed steps"):
+        RidgeBaseline().fit(states, valid, attention, roles, 2, DT)
