@@ -7,10 +7,12 @@ build the data; the fixtures `make_dataset_file` and `dataset_file` wrap them fo
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import pytest
@@ -159,6 +161,16 @@ def write_predictions_npz(path: Path, **kwargs) -> Path:
     """A predictions file as tools/evaluate.py writes it (`make_predictions(**kwargs)`)."""
     make_predictions(**kwargs).save(path)
     return path
+
+
+def load_tool(name: str) -> ModuleType:
+    """tools/<name> (e.g. "plot.py") imported as a fresh module, for in-process runs where a
+    failure must be simulated; the tools are scripts, not a package."""
+    path = REPO_ROOT / "tools" / name
+    spec = importlib.util.spec_from_file_location(f"tool_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def tool_env() -> dict[str, str]:

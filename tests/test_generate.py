@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import errno
-import importlib.util
 import os
 import re
 import select
@@ -18,6 +17,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import load_tool
 
 from pipeline import generation
 from pipeline.generation import GenerateConfig, default_output, generate_dataset, plan
@@ -27,9 +27,7 @@ from scenarios.rollout import rollout
 
 REPO = Path(__file__).resolve().parents[1]
 TOOL = REPO / "tools" / "generate.py"
-_spec = importlib.util.spec_from_file_location("tool_generate", TOOL)
-generate_tool = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(generate_tool)
+generate_tool = load_tool("generate.py")
 
 SMALL = dict(num_major=5, num_minor=2, num_test=3)  # 4 + 1 major, 2 + 0 minor, 3 + 3 test
 

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import REPO_ROOT, tool_env
+from conftest import REPO_ROOT, load_tool, tool_env
 
 PLAY = REPO_ROOT / "tools" / "play.py"
 NO_DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")
@@ -68,10 +68,7 @@ def assert_one_error_line(done: subprocess.CompletedProcess, start: str) -> None
 @pytest.fixture(scope="module")
 def play():
     """tools/play.py imported as a module, for runs where a failure must be simulated."""
-    spec = importlib.util.spec_from_file_location("tool_play", PLAY)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("play.py")
 
 
 def test_play_records_a_gif_and_refuses_to_overwrite_it(tmp_path: Path) -> None:

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from conftest import (
     REPO_ROOT,
+    load_tool,
     make_meta,
     make_predictions,
     make_trajectory_set,
@@ -215,9 +216,7 @@ def test_plot_tool_bad_input_is_one_line_exit_2(tmp_path: Path, dataset_file: Pa
 def test_plot_tool_unwritable_output_is_one_line(tmp_path: Path, capsys, monkeypatch) -> None:
     """A read-only output directory, simulated (root ignores permission bits): the rename of the
     finished temporary file raises EACCES. One line, exit 2, nothing left behind."""
-    sys.path.insert(0, str(REPO_ROOT / "tools"))
-    import plot
-
+    plot = load_tool("plot.py")
     pred = write_predictions_npz(tmp_path / "pred.npz")
 
     def refuse(src, dst) -> None:

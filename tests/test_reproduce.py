@@ -16,14 +16,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import REPO_ROOT, tool_env
+from conftest import REPO_ROOT, load_tool, tool_env
 from scipy import stats
 
 from pipeline import reproduction
 from predictor.evaluation import read_checkpoint
 
-sys.path.insert(0, str(REPO_ROOT / "tools"))
-import reproduce  # noqa: E402
+reproduce = load_tool("reproduce.py")
 
 SETTINGS = ("dm_r0.3", "dm_r0.8", "dm_3+10", "dm_15+30", "dm_30+100", "hc_stop", "hc_go")
 VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct", "const_vel")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import errno
-import importlib.util
 import json
 import os
 import subprocess
@@ -12,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import REPO_ROOT, tool_env
+from conftest import REPO_ROOT, load_tool, tool_env
 from test_training import write_braking_dataset
 
 TINY = ["--embed-dim", "8", "--edge-hidden", "8", "--node-hidden", "12", "--attn-dim", "4"]
@@ -46,15 +45,6 @@ def run_tool(name: str, *args: str) -> subprocess.CompletedProcess:
         env=tool_env(),
         timeout=120,
     )
-
-
-def load_tool(name: str):
-    """Import tools/<name>.py as a module (for fast in-process error checks)."""
-    sys.path.insert(0, str(REPO_ROOT / "tools"))
-    spec = importlib.util.spec_from_file_location(f"tool_{name}", REPO_ROOT / "tools" / name)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture(scope="module")
