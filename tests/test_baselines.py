@@ -3,8 +3,12 @@ direction, and a future decided by another agent that only the right neighbour f
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
+from conftest import REPO_ROOT, tool_env
 
 from predictor.baselines import (
     BASELINES,
@@ -13,6 +17,8 @@ from predictor.baselines import (
     RidgeConfig,
     constant_velocity,
 )
+from predictor.format import DatasetMeta, TrajectorySet, write_dataset
+from predictor.interaction import interaction_gain
 
 DT = 0.2
 OBSERVED = 8
@@ -161,3 +167,52 @@ def test_refuses_too_short_observations_and_unfitted_use():
         RidgeBaseline().predict(states, valid, attention, roles)
     with pytest.raises(ValueError, match="at least 3 observed steps"):
         RidgeBaseline().fit(states, valid, attention, roles, 2, DT)
+
+
+def test_interaction_gain_finds_the_deciding_car_and_the_tool_prints_it(tmp_path):
+    """Through a dataset file: agent 0's future is decided by agent 1 (its label), so the
+    labelled car's history removes nearly all its error and a random car's does not."""
+    rng = np.random.default_rng(5)
+    splits = {}
+    for name, n in (("train", 80), ("val", 4), ("test", 30)):
+        states, attention, roles = decided_by_neighbour(rng, n)
+        shape = states.shape[:3]
+        splits[name] = TrajectorySet(
+            states=states.astype(np.float32),
+            actions=np.zeros((*shape, 2), np.float32),
+            valid=np.ones(shape, bool),
+            attention=attention,
+            interaction=np.ones(shape[:2], bool),
+            case=np.zeros(n, np.int8),
+            seed=np.arange(n, dtype=np.int64),
+            roles=roles,
+        )
+    meta = DatasetMeta(
+        scenario="decided_by_neighbour",
+        dt=DT,
+        num_observed=OBSERVED,
+        num_predicted=STEPS - OBSERVED,
+        case_names=("only", "never"),
+        major_case="only",
+        role_names=("attending", "attended", "far"),
+        config={"made_by": "tests"},
+    )
+    path = tmp_path / "gain.h5"
+    write_dataset(path, meta, splits)
+
+    (row,) = interaction_gain(path)  # only agent 0 has a label, all in case "only"
+    assert (row.case, row.role, row.agents) == ("only", "attending", 30)
+    assert row.own > 0.3 and row.gain > 0.95 and abs(row.control) < 0.2
+
+    done = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "tools" / "inspect_data.py"), path, "--interaction-gain"],
+        capture_output=True,
+        text=True,
+        env=tool_env(),
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    last = done.stdout.strip().splitlines()[-1].split()
+    assert last[:3] == ["only", "attending", "30"]
+    assert float(last[3]) == pytest.approx(row.own, abs=5e-4)
+    assert float(last[4]) == pytest.approx(row.labelled, abs=5e-4)

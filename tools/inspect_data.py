@@ -1,6 +1,11 @@
 """Check a trajectory dataset file against the schema and print a summary.
 
     python tools/inspect_data.py data/double_merge.h5
+    python tools/inspect_data.py data/double_merge.h5 --interaction-gain
+
+With --interaction-gain, also the interaction gain of the labelled cars (predictor.interaction):
+the test ADE of ridge regressions fitted on the train split on the attending car's own history,
+plus the labelled car's, plus a random car's, per case and role.
 
 Exit status: 0 valid; 1 the file exists but is not a valid dataset; 2 usage error / missing file.
 """
@@ -9,11 +14,17 @@ from __future__ import annotations
 
 from pipeline.cli import ArgumentParser, fail, require_file, run_main
 from predictor.format import SCHEMA_VERSION, FormatError, summarize
+from predictor.interaction import format_gain_table, interaction_gain
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("file", help="HDF5 trajectory file to check")
+    parser.add_argument(
+        "--interaction-gain",
+        action="store_true",
+        help="also fit ridge baselines and report how much the labelled car explains",
+    )
     args = parser.parse_args(argv)
     path = require_file(args.file)
     try:
@@ -22,6 +33,13 @@ def main(argv: list[str] | None = None) -> None:
         fail(str(err), code=1)
     print(text)
     print(f"OK: {path} is a valid schema v{SCHEMA_VERSION} dataset")
+    if args.interaction_gain:
+        try:
+            rows = interaction_gain(path)
+        except ValueError as err:
+            fail(str(err))
+        print("\ninteraction gain (ridge test ADE of the attending agents, fitted on train):")
+        print(format_gain_table(rows))
 
 
 if __name__ == "__main__":
