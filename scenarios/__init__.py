@@ -2,18 +2,26 @@
 
 Plain scenario classes (`DoubleMerge`, `HaltingCar`, registered in `SCENARIOS`) draw randomised
 episodes from a seed and drive every car with an expert policy; `rollout` records one episode as
-numpy arrays. The PettingZoo environments are the submodules `double_merge_v0` and
-`halting_car_v0` (imported on demand: `from scenarios import double_merge_v0`).
+numpy arrays. The PettingZoo environments are the submodules `double_merge_v0`,
+`halting_car_v0` and `halting_car_v1` (imported on demand: `from scenarios import
+halting_car_v1`). Halting Car v1 (`ReactiveHaltingCar`, registered as "halting_car_v1") observes
+the leader's braking and predicts the follower's delayed reaction.
 """
 
 from scenarios.base import ROLE_NAMES, Scenario, ScenarioConfig, ScenarioPlan
 from scenarios.double_merge import DoubleMerge, DoubleMergeConfig, DoubleMergePlan
 from scenarios.halting_car import HaltingCar, HaltingCarConfig, HaltingCarPlan
+from scenarios.halting_car_reactive import (
+    ReactiveHaltingCar,
+    ReactiveHaltingCarConfig,
+    ReactiveHaltingCarPlan,
+)
 from scenarios.rollout import Episode, advance, rollout
 
 SCENARIOS: dict[str, type[Scenario]] = {
     DoubleMerge.name: DoubleMerge,
     HaltingCar.name: HaltingCar,
+    ReactiveHaltingCar.name: ReactiveHaltingCar,
 }
 
 __all__ = [
@@ -26,6 +34,9 @@ __all__ = [
     "HaltingCar",
     "HaltingCarConfig",
     "HaltingCarPlan",
+    "ReactiveHaltingCar",
+    "ReactiveHaltingCarConfig",
+    "ReactiveHaltingCarPlan",
     "Scenario",
     "ScenarioConfig",
     "ScenarioPlan",

@@ -33,13 +33,19 @@ from scenarios import (
     DoubleMerge,
     DoubleMergeConfig,
     HaltingCar,
+    ReactiveHaltingCar,
     double_merge_v0,
     halting_car_v0,
+    halting_car_v1,
     rollout,
 )
 
-MODULES = [double_merge_v0, halting_car_v0]
-SCENARIO_OF = {double_merge_v0: DoubleMerge, halting_car_v0: HaltingCar}
+MODULES = [double_merge_v0, halting_car_v0, halting_car_v1]
+SCENARIO_OF = {
+    double_merge_v0: DoubleMerge,
+    halting_car_v0: HaltingCar,
+    halting_car_v1: ReactiveHaltingCar,
+}
 CASES = [(module, case) for module in MODULES for case in SCENARIO_OF[module].case_names]
 IDS = [f"{module.__name__.split('.')[-1]}-{case}" for module, case in CASES]
 

@@ -19,6 +19,8 @@ from scenarios import (
     Episode,
     HaltingCar,
     HaltingCarConfig,
+    ReactiveHaltingCar,
+    ReactiveHaltingCarConfig,
     rollout,
 )
 from scenarios.base import BROWN, GREEN
@@ -44,7 +46,7 @@ def plan_of(name: str, seed: int, case: str):
 
 # --- registry and configuration ---------------------------------------------------------------
 def test_registry_and_class_attributes() -> None:
-    assert set(SCENARIOS) == {"double_merge", "halting_car"}
+    assert set(SCENARIOS) == {"double_merge", "halting_car", "halting_car_v1"}
     assert DoubleMerge.case_names == ("major", "minor")
     assert HaltingCar.case_names == ("stop", "go")
     for name, cls in SCENARIOS.items():
@@ -55,7 +57,9 @@ def test_registry_and_class_attributes() -> None:
     assert HaltingCar.config_class is HaltingCarConfig
 
 
-@pytest.mark.parametrize("config_class", [DoubleMergeConfig, HaltingCarConfig])
+@pytest.mark.parametrize(
+    "config_class", [DoubleMergeConfig, HaltingCarConfig, ReactiveHaltingCarConfig]
+)
 def test_config_derived_quantities(config_class) -> None:
     config = config_class()
     assert config.num_steps <= 60
@@ -244,6 +248,55 @@ def test_halting_car_go_case_keeps_speed_and_has_no_interaction() -> None:
         assert not run.interaction.any()
         np.testing.assert_allclose(run.states[:, BROWN, 3], run.states[0, BROWN, 3], atol=1e-5)
         assert run.states[:, GREEN, 3].min() > 0.6 * run.states[0, BROWN, 3]
+
+
+# --- Halting Car v1 -------------------------------------------------------------------------------
+def test_halting_car_v1_braking_is_observed_and_the_reaction_is_predicted() -> None:
+    """Case stop, 200 seeds: the leader brakes for at least two observed steps, the same
+    stop-and-go cycle as v0 follows, and at least 80 % of the follower's braking (the sum of
+    its negative accelerations) comes after the last observed step."""
+    config = ReactiveHaltingCarConfig()
+    last_observed = config.num_observed - 1
+    for run in episodes("halting_car_v1", "stop"):
+        interaction = np.nonzero(run.interaction)[0]
+        assert interaction[0] <= last_observed - 2  # onset inside the observed window
+        leader_speed = run.states[:, BROWN, 3]
+        assert leader_speed[last_observed] < leader_speed[0] - 0.5  # visibly slower by then
+        assert abs(leader_speed[-1] - leader_speed[0]) < 0.05  # back at its cruising speed
+        braking = np.clip(-run.actions[:, GREEN, 1].astype(float), 0.0, None)  # (T,)
+        assert braking[last_observed:].sum() >= 0.8 * braking.sum() > 0.0
+        gap = run.states[:, BROWN, 0] - run.states[:, GREEN, 0] - config.car_length_m
+        assert gap.min() > 1.0
+
+
+def test_halting_car_v1_go_case_keeps_speed_and_has_no_interaction() -> None:
+    for run in episodes("halting_car_v1", "go"):
+        assert not run.interaction.any()
+        np.testing.assert_allclose(run.states[:, BROWN, 3], run.states[0, BROWN, 3], atol=1e-5)
+
+
+def test_halting_car_v1_reaction_delays_are_two_or_three_steps() -> None:
+    delays = {plan_of("halting_car_v1", seed, "stop").reaction_steps for seed in range(50)}
+    assert delays == {2, 3}  # 0.6 or 0.9 s at 0.3 s per control step
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_halting_car_v1_follower_reacts_to_the_leader_exactly_one_delay_later(seed: int) -> None:
+    """Force the leader to brake from step k: its state changes from step k + 1, and the
+    follower's actions stay identical up to step k + delay, then change."""
+    sc = ReactiveHaltingCar()
+    base = rollout(sc, seed, "go")
+    delay = sc.plan.reaction_steps
+    k = 15
+    forced = np.full_like(base.actions, np.nan)
+    forced[k:, BROWN] = (0.0, -3.0)
+    braked = rollout(sc, seed, "go", forced_actions=forced)
+    np.testing.assert_array_equal(braked.states[: k + 1, BROWN], base.states[: k + 1, BROWN])
+    np.testing.assert_array_equal(
+        braked.actions[: k + 1 + delay, GREEN], base.actions[: k + 1 + delay, GREEN]
+    )
+    assert braked.actions[k + 1 + delay, GREEN, 1] < base.actions[k + 1 + delay, GREEN, 1]
+    assert not braked.collided
 
 
 # --- causal structure ---------------------------------------------------------------------------
