@@ -10,7 +10,6 @@ Prints a table line per scenario and, last, one JSON line {"benchmark": "env", .
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import statistics
 import sys
@@ -19,12 +18,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a plain checkout too
 
-from scenarios import SCENARIOS, rollout  # noqa: E402
+from scenarios import SCENARIOS, env_module, rollout  # noqa: E402
 
 
 def time_env(scenario_name: str, episodes: int, seed: int) -> tuple[float, float]:
     """(agent-steps/s of step alone, agent-steps/s of expert_actions + step) over `episodes`."""
-    module = importlib.import_module(f"scenarios.{scenario_name}_v0")
+    module = env_module(scenario_name)
     env = module.parallel_env()
     cases = SCENARIOS[scenario_name].case_names
     step_time = total_time = 0.0

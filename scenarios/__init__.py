@@ -8,6 +8,9 @@ halting_car_v1`). Halting Car v1 (`ReactiveHaltingCar`, registered as "halting_c
 the leader's braking and predicts the follower's delayed reaction.
 """
 
+import importlib
+from types import ModuleType
+
 from scenarios.base import ROLE_NAMES, Scenario, ScenarioConfig, ScenarioPlan
 from scenarios.double_merge import DoubleMerge, DoubleMergeConfig, DoubleMergePlan
 from scenarios.halting_car import HaltingCar, HaltingCarConfig, HaltingCarPlan
@@ -18,13 +21,28 @@ from scenarios.halting_car_reactive import (
 )
 from scenarios.rollout import Episode, advance, rollout
 
+ENV_MODULES: dict[str, str] = {  # scenario name -> its PettingZoo environment module
+    "double_merge": "scenarios.double_merge_v0",
+    "halting_car": "scenarios.halting_car_v0",
+    "halting_car_v1": "scenarios.halting_car_v1",
+}
+
 SCENARIOS: dict[str, type[Scenario]] = {
     DoubleMerge.name: DoubleMerge,
     HaltingCar.name: HaltingCar,
     ReactiveHaltingCar.name: ReactiveHaltingCar,
 }
 
+
+def env_module(name: str) -> ModuleType:
+    """The PettingZoo environment module of scenario `name` (`parallel_env`, `env`, `raw_env`)."""
+    if name not in ENV_MODULES:
+        raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(sorted(ENV_MODULES))}")
+    return importlib.import_module(ENV_MODULES[name])
+
+
 __all__ = [
+    "ENV_MODULES",
     "ROLE_NAMES",
     "SCENARIOS",
     "DoubleMerge",
@@ -41,5 +59,6 @@ __all__ = [
     "ScenarioConfig",
     "ScenarioPlan",
     "advance",
+    "env_module",
     "rollout",
 ]

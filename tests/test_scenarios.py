@@ -12,6 +12,7 @@ import pytest
 
 from carlo_lite import World
 from scenarios import (
+    ENV_MODULES,
     ROLE_NAMES,
     SCENARIOS,
     DoubleMerge,
@@ -21,6 +22,7 @@ from scenarios import (
     HaltingCarConfig,
     ReactiveHaltingCar,
     ReactiveHaltingCarConfig,
+    env_module,
     rollout,
 )
 from scenarios.base import BROWN, GREEN
@@ -55,6 +57,17 @@ def test_registry_and_class_attributes() -> None:
         assert cls.role_names == ROLE_NAMES == ("main_green", "main_brown", "distractor")
     assert DoubleMerge.config_class is DoubleMergeConfig
     assert HaltingCar.config_class is HaltingCarConfig
+
+
+def test_every_scenario_has_its_environment_module() -> None:
+    assert set(ENV_MODULES) == set(SCENARIOS)
+    for name, cls in SCENARIOS.items():
+        env = env_module(name).parallel_env()
+        assert isinstance(env.scenario, cls)
+        assert env.metadata["name"] == ENV_MODULES[name].split(".")[-1]
+        assert env.metadata["name"].startswith(name.removesuffix("_v1"))
+    with pytest.raises(ValueError, match="unknown scenario 'nowhere'"):
+        env_module("nowhere")
 
 
 @pytest.mark.parametrize(

@@ -28,7 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.cli import ArgumentParser, check_output, fail, writing
-from scenarios import SCENARIOS
+from scenarios import SCENARIOS, env_module
 
 STEER_RAD = 0.12  # steering while an arrow key is held
 ACCEL_MPS2, BRAKE_MPS2 = 2.0, -5.0
@@ -132,7 +132,7 @@ class Keyboard:
 
 def play(args: argparse.Namespace, case: str) -> tuple[dict, list[np.ndarray]]:
     """Run the episode; returns (summary counts, frames recorded for the video)."""
-    module = importlib.import_module(f"scenarios.{args.scenario}_v0")
+    module = env_module(args.scenario)
     want_frames = args.render == "human" or args.record is not None
     env = module.parallel_env(render_mode="rgb_array" if want_frames else None)
     env.reset(seed=args.seed, options={"case": case})
