@@ -12,8 +12,9 @@ import contextlib
 import multiprocessing
 import signal
 import sys
+import time
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import TypeVar
 
 from tqdm import tqdm
@@ -62,28 +63,46 @@ Result = TypeVar("Result")
 
 
 def run_parallel(
-    function: Callable[[Item], Result], items: Sequence[Item], jobs: int, desc: str
-) -> list[Result]:
+    function: Callable[[Item], Result],
+    items: Sequence[Item],
+    jobs: int,
+    desc: str,
+    deadline: float | None = None,
+) -> list[Result | None]:
     """function(item) for every item in `jobs` spawned processes; results in item order.
 
-    On any exception here (Ctrl-C included) the stop event is set: running jobs end at their
-    next safe point, queued ones never start, and the exception is re-raised once all stopped.
+    Items are handed out as workers become free. With a `deadline` (a `time.monotonic()`
+    value), no item starts after it: the running ones finish and the rest are left out, their
+    results None. On any exception here (Ctrl-C included) the stop event is set: running jobs
+    end at their next safe point, the rest never start, and the exception is re-raised once all
+    stopped.
     """
     results: list = [None] * len(items)
     if not items:
         return results
     context = multiprocessing.get_context("spawn")  # never fork a process that imported torch
     stop = context.Event()
+    workers = min(jobs, len(items))
     executor = ProcessPoolExecutor(
-        min(jobs, len(items)), mp_context=context, initializer=_init_worker, initargs=(stop,)
+        workers, mp_context=context, initializer=_init_worker, initargs=(stop,)
     )
     bar = tqdm(total=len(items), desc=desc, unit="job", file=sys.stderr, dynamic_ncols=True)
+    queue = iter(enumerate(items))
+    running: dict = {}
     try:
-        with _signals_blocked():  # the workers start in submit
-            futures = {executor.submit(function, item): k for k, item in enumerate(items)}
-        for future in as_completed(futures):
-            results[futures[future]] = future.result()
-            bar.update()
+        while True:
+            while len(running) < workers and (deadline is None or time.monotonic() < deadline):
+                k, item = next(queue, (None, None))
+                if k is None:
+                    break
+                with _signals_blocked():  # a worker may start in submit
+                    running[executor.submit(function, item)] = k
+            if not running:
+                break
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in done:
+                results[running.pop(future)] = future.result()
+                bar.update()
     except BaseException:
         stop.set()
         raise

@@ -16,6 +16,12 @@ invocation that ran jobs (date, command, wall seconds), for the report's wall ti
 hash the scenario, model and training configurations (a changed default starts new runs) but
 not the code: delete the cache after changing how experts, model or training behave.
 
+Results store (`store`, optional): each finished run's eval.json (and scenes.npz for the
+figure runs), no checkpoints, under the same relative path as under `runs/`. A job whose
+results are in the cache or the store is not run again; the report reads both. Meant to be
+committed, so a protocol can be completed over several sittings or machines. A time budget
+(`budget_s`) starts no run after it expires; running ones finish, the rest wait for a rerun.
+
 Interrupts (pipeline.pool): the workers ignore SIGINT and SIGTERM (a terminal's Ctrl-C reaches
 the whole process group); the parent, on any exception (KeyboardInterrupt included), sets a
 shared stop event. Each job checks it at safe points: before it starts, before every optimiser
@@ -50,6 +56,7 @@ PAPER_EPOCHS, PAPER_SEEDS = 200, 10
 QUICK_EPOCHS, QUICK_SEEDS, QUICK_NUM_TEST = 1, 2, 5
 QUICK_MAX_MAJOR = 10  # a quick protocol shrinks every setting to at most 10 major trajectories
 QUICK_MIN_MINOR = 2
+DEFAULT_STORE = "results"  # the results store tools/reproduce.py keeps (tracked: commit it)
 INVOCATION_LOG = "invocations.jsonl"  # in the cache: date, command, wall seconds, jobs run
 
 
@@ -186,6 +193,7 @@ class Job:
     epochs: int
     run_dir: str
     save_scenes: bool  # keep predictions of the figure scenes (scenes.npz)
+    store_dir: str = ""  # where the results store keeps its eval.json (and scenes.npz); "" none
 
 
 @dataclass(frozen=True)
@@ -244,16 +252,22 @@ def run_dir(out_dir: Path, spec: DataSpec, variant: str, seed: int, epochs: int)
     return base / f"seed{seed}_ep{epochs}_{digest(configs)}"
 
 
-def setting_jobs(protocol: Protocol, setting: Setting, out_dir: Path) -> list[Job]:
-    """The jobs of one setting, in variant then seed order."""
+def setting_jobs(
+    protocol: Protocol, setting: Setting, out_dir: Path, store: Path | None = None
+) -> list[Job]:
+    """The jobs of one setting, in variant then seed order; with a results `store`, each job
+    keeps its results under the same relative path there as under out_dir/runs."""
     spec = data_spec(protocol, setting)
     path = str(data_path(out_dir, spec))
     jobs = []
     for variant in protocol.variants:
         for seed in [0] if variant == BASELINE else range(protocol.seeds):
             directory = run_dir(out_dir, spec, variant, seed, protocol.epochs)
+            kept = "" if store is None else str(store / directory.relative_to(out_dir / "runs"))
             save_scenes = variant in FIGURE_VARIANTS and seed == 0
-            jobs.append(Job(path, variant, seed, protocol.epochs, str(directory), save_scenes))
+            jobs.append(
+                Job(path, variant, seed, protocol.epochs, str(directory), save_scenes, kept)
+            )
     return jobs
 
 
@@ -373,12 +387,22 @@ def _train_seconds(metrics: Path) -> float:
 
 
 # ---------------------------------------------------------------------------------- the cache
+def result_dir(job: Job) -> Path | None:
+    """Where the job's finished results are: its run directory if it has an eval.json, else
+    the results store if that has one, else None (the job must run)."""
+    for directory in (job.run_dir, job.store_dir):
+        if directory and (Path(directory) / "eval.json").is_file():
+            return Path(directory)
+    return None
+
+
 def read_eval(job: Job) -> dict | None:
-    """The job's eval.json if it exists and belongs to the job (None: the job must run);
-    ReproductionError for an unreadable or foreign one."""
-    path = Path(job.run_dir) / "eval.json"
-    if not path.is_file():
+    """The job's eval.json (from the cache, else the results store) if it exists and belongs
+    to the job (None: the job must run); ReproductionError for an unreadable or foreign one."""
+    directory = result_dir(job)
+    if directory is None:
         return None
+    path = directory / "eval.json"
     try:
         result = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as err:
@@ -389,32 +413,51 @@ def read_eval(job: Job) -> dict | None:
         raise ReproductionError(
             f"cached {path} is not the result of {want}; delete it to redo that run"
         )
-    if job.save_scenes and not (Path(job.run_dir) / "scenes.npz").is_file():
+    if job.save_scenes and not (directory / "scenes.npz").is_file():
         return None  # e.g. evaluated by hand: redo the evaluation to get the figure scenes
     return result
 
 
-def collect(protocol: Protocol, out_dir: Path) -> tuple[RunRecord, ...]:
-    """One record per (setting, variant, seed) whose eval.json exists."""
+def keep_result(job: Job) -> bool:
+    """Copy a finished job's eval.json (and scenes.npz) from its run directory into the results
+    store, atomically, eval.json last; True if something was copied."""
+    if not job.store_dir or read_eval(job) is None:
+        return False
+    source, store = Path(job.run_dir), Path(job.store_dir)
+    if not (source / "eval.json").is_file() or (store / "eval.json").is_file():
+        return False
+    store.mkdir(parents=True, exist_ok=True)
+    names = ["scenes.npz"] if job.save_scenes else []
+    for name in [*names, "eval.json"]:
+        with atomic_output(store / name) as temp:
+            temp.write_bytes((source / name).read_bytes())
+    return True
+
+
+def collect(protocol: Protocol, out_dir: Path, store: Path | None = None) -> tuple[RunRecord, ...]:
+    """One record per (setting, variant, seed) whose eval.json exists (cache or store)."""
     records = []
     for setting in protocol.settings:
-        for job in setting_jobs(protocol, setting, out_dir):
+        for job in setting_jobs(protocol, setting, out_dir, store):
             result = read_eval(job)
             if result is not None:
                 records.append(RunRecord.from_eval(setting.name, job.variant, job.seed, result))
     return tuple(records)
 
 
-def scene_files(protocol: Protocol, out_dir: Path) -> dict[str, dict[str, str]]:
+def scene_files(
+    protocol: Protocol, out_dir: Path, store: Path | None = None
+) -> dict[str, dict[str, str]]:
     """setting -> {variant: scenes.npz} for settings where every FIGURE_VARIANTS file exists."""
     found = {}
     for setting in protocol.settings:
-        spec = data_spec(protocol, setting)
-        files = {
-            v: run_dir(out_dir, spec, v, 0, protocol.epochs) / "scenes.npz" for v in FIGURE_VARIANTS
-        }
-        if all(path.is_file() for path in files.values()):
-            found[setting.name] = {v: str(path) for v, path in files.items()}
+        jobs = setting_jobs(protocol, setting, out_dir, store)
+        files = {}
+        for job in jobs:
+            if job.variant in FIGURE_VARIANTS and job.seed == 0 and read_eval(job) is not None:
+                files[job.variant] = str(result_dir(job) / "scenes.npz")
+        if set(files) == set(FIGURE_VARIANTS):
+            found[setting.name] = files
     return found
 
 
@@ -430,6 +473,9 @@ class RunCounts:
     resumed: int
     failed: int
     failures: tuple[str, ...] = ()  # "run_dir: error" of each failed (diverged) run
+    skipped: int = 0  # runs not started because the time budget ran out
+    reused_from_store: int = 0  # of `reused`: read from the results store, not the cache
+    kept: int = 0  # results copied into the results store by this invocation
 
     def to_json(self) -> dict:
         return {**asdict(self), "failures": list(self.failures)}
@@ -445,17 +491,31 @@ class Invocation:
     runs: int  # jobs run (trained or resumed; const_vel: evaluated)
 
 
-def execute(protocol: Protocol, out_dir: Path, jobs: int) -> RunCounts:
-    """Make the datasets, then train/evaluate every run the cache lacks."""
+def execute(
+    protocol: Protocol,
+    out_dir: Path,
+    jobs: int,
+    store: Path | None = None,
+    deadline: float | None = None,
+) -> RunCounts:
+    """Make the datasets, then train/evaluate every run that neither the cache nor the results
+    store has (none starts after `deadline`, a time.monotonic() value); every finished run's
+    results are kept in the store."""
     specs = unique([data_spec(protocol, s) for s in protocol.settings])
     items = [(spec, str(data_path(out_dir, spec))) for spec in specs]
     data_status = run_parallel(ensure_dataset, items, jobs, "datasets")
-    all_jobs = unique([j for s in protocol.settings for j in setting_jobs(protocol, s, out_dir)])
+    all_jobs = unique(
+        [j for s in protocol.settings for j in setting_jobs(protocol, s, out_dir, store)]
+    )
     # Seed-major order: an interrupted reproduction leaves whole seeds (every setting and
     # variant), so a rerun with a smaller seed count reports from the cache alone.
     todo = sorted((job for job in all_jobs if read_eval(job) is None), key=lambda j: j.seed)
-    outcomes = run_parallel(run_job, todo, jobs, "runs")
-    statuses = [o.status for o in outcomes]
+    from_store = sum(
+        1 for job in all_jobs if job not in todo and result_dir(job) == Path(job.store_dir)
+    )
+    outcomes = run_parallel(run_job, todo, jobs, "runs", deadline)
+    statuses = [o.status if o is not None else "skipped" for o in outcomes]
+    kept = sum(keep_result(job) for job in all_jobs)
     return RunCounts(
         datasets_generated=data_status.count("generated"),
         datasets_reused=data_status.count("reused"),
@@ -465,8 +525,13 @@ def execute(protocol: Protocol, out_dir: Path, jobs: int) -> RunCounts:
         resumed=statuses.count("resumed"),
         failed=statuses.count("failed"),
         failures=tuple(
-            f"{job.run_dir}: {o.error}" for job, o in zip(todo, outcomes) if o.status == "failed"
+            f"{job.run_dir}: {o.error}"
+            for job, o in zip(todo, outcomes)
+            if o is not None and o.status == "failed"
         ),
+        skipped=statuses.count("skipped"),
+        reused_from_store=from_store,
+        kept=kept,
     )
 
 
@@ -506,9 +571,13 @@ def reproduce(
     jobs: int = 2,
     command: str = "",
     overwrite: bool = False,
+    store: Path | None = None,
+    budget_s: float | None = None,
 ) -> Outcome:
-    """Run what the cache in `out_dir` lacks and write the report at `report` (a .md file;
-    results.json and results/ go beside it). `command` is how the report names the invocation.
+    """Run what the cache in `out_dir` and the results `store` lack and write the report at
+    `report` (a .md file; results.json and results/ go beside it). `command` is how the report
+    names the invocation. With `budget_s`, no run starts after that many seconds: the running
+    ones finish and the report covers what is done.
 
     Raises FileExistsError if the report exists and not `overwrite`, ReproductionError for an
     unusable cache entry, RuntimeError if a dataset cannot be made; KeyboardInterrupt leaves
@@ -521,15 +590,16 @@ def reproduce(
     started = time.perf_counter()
     out_dir.mkdir(parents=True, exist_ok=True)
     report.parent.mkdir(parents=True, exist_ok=True)
-    counts = execute(protocol, out_dir, jobs)
+    deadline = None if budget_s is None else time.monotonic() + budget_s
+    counts = execute(protocol, out_dir, jobs, store, deadline)
     history = log_invocation(out_dir, command, time.perf_counter() - started, counts)
     source = ReportInput(
         protocol=protocol,
-        runs=collect(protocol, out_dir),
+        runs=collect(protocol, out_dir, store),
         data_paths={
             s.name: str(data_path(out_dir, data_spec(protocol, s))) for s in protocol.settings
         },
-        scene_files=scene_files(protocol, out_dir),
+        scene_files=scene_files(protocol, out_dir, store),
         command=command,
         counts=counts,
         jobs=jobs,

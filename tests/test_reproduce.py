@@ -216,6 +216,9 @@ def test_existing_report_needs_overwrite(quick):
         (["--epochs", "x"], "invalid int value"),
         (["--results", "report.txt"], "must name a .md file"),
         (["--report", "report.txt"], "must name a .md file"),
+        (["--budget-minutes", "0"], "--budget-minutes must be positive"),
+        (["--store", str(REPO_ROOT / "README.md")], "exists and is not a directory"),
+        (["--store", "s", "--no-store"], "not allowed with argument"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, args, message):
@@ -396,3 +399,44 @@ def test_figure_scenes_pick_the_first_interacting_scene_per_case():
     interaction = np.zeros((5, 4), dtype=bool)
     interaction[2, 1] = interaction[4, 3] = True
     assert reproduction.figure_scenes(case, interaction, 2) == [2, 0]  # case 1: none -> first
+
+
+def test_run_parallel_starts_nothing_after_its_deadline():
+    from pipeline.pool import run_parallel
+
+    assert run_parallel(abs, [-1, -2, 3], 2, "t", deadline=time.monotonic() - 1.0) == [None] * 3
+    assert run_parallel(abs, [-1, -2, 3], 2, "t", deadline=time.monotonic() + 600.0) == [1, 2, 3]
+
+
+STORE_ARGS = ("--quick", "--settings", "main", "--variants", "ours,const_vel", "--seeds", "1")
+
+
+def test_results_store_rebuilds_the_report_in_a_fresh_cache_and_budget_leaves_runs(tmp_path):
+    """Runs kept in the store are not redone from another cache (as on another machine with the
+    committed store); the report's numbers are the same. A spent budget starts no run."""
+    store = tmp_path / "store"
+    first, _ = run_reproduce(*STORE_ARGS, "--out-dir", str(tmp_path / "a"), "--store", str(store))
+    assert first.returncode == 0, first.stderr[-2000:]
+    kept = sorted(p.relative_to(store).as_posix() for p in store.rglob("*") if p.is_file())
+    assert len([k for k in kept if k.endswith("eval.json")]) == 4  # 2 settings x (ours, cv)
+    assert len([k for k in kept if k.endswith("scenes.npz")]) == 2  # ours seed 0: figure scenes
+    assert not any(k.endswith(".pt") for k in kept)  # no checkpoints
+
+    second, _ = run_reproduce(*STORE_ARGS, "--out-dir", str(tmp_path / "b"), "--store", str(store))
+    assert second.returncode == 0, second.stderr[-2000:]
+    assert "4 runs (0 trained, 0 resumed, 4 reused, 0 failed)" in second.stdout
+    assert not list((tmp_path / "b").rglob("*.pt"))
+    results = [json.loads((tmp_path / d / "results.json").read_text()) for d in ("a", "b")]
+    assert results[0]["runs"] == results[1]["runs"]
+    assert results[0]["aggregates"] == results[1]["aggregates"]
+    assert results[1]["counts"]["reused_from_store"] == 4
+
+    spent, _ = run_reproduce(
+        *STORE_ARGS, "--out-dir", str(tmp_path / "c"), "--budget-minutes", "1e-6"
+    )
+    assert spent.returncode == 0, spent.stderr[-2000:]
+    assert (
+        "0 trained, 0 resumed, 0 reused, 0 failed, 4 left for a later run (budget)" in spent.stdout
+    )
+    assert not list((tmp_path / "c").rglob("eval.json"))
+    assert "not started: time budget" in (tmp_path / "c" / "RESULTS.md").read_text()

@@ -30,6 +30,13 @@ validation ADE of the main agents) on the test split; `const_vel` is evaluated o
 Groups for `--settings`: `main` (dm_r0.3, hc_stop), `ratio`, `size`, `halting`, `all`.
 Every setting has 50 test trajectories per case and a 20 % validation split.
 
+Results store (`--store`, default results/, none with --quick): each finished run's eval.json
+(and, for the figure runs, scenes.npz), no checkpoints, under the same relative path as in the
+cache. Commit it: a run found there is not redone, so a protocol can be completed over several
+sittings or machines, and the report can be rebuilt from the store alone (the datasets are
+regenerated in seconds). `--budget-minutes M` starts no run after M minutes; the running ones
+finish, the report covers what is done, and the same command later continues.
+
 Cache (`--out-dir`, default outputs/reproduce): datasets and runs, keyed by every input (see
 pipeline/reproduction.py). A run with its eval.json is reused; a run with last.pt resumes
 (bit-identical to an uninterrupted one); Ctrl-C stops every job at its next safe point (exit
@@ -59,6 +66,7 @@ from pipeline.cli import ArgumentParser, fail
 from pipeline.reproduction import (
     ALL_VARIANTS,
     DATA_SEED,
+    DEFAULT_STORE,
     GROUPS,
     NUM_TEST,
     PAPER_EPOCHS,
@@ -129,6 +137,22 @@ def parse_args(argv: list[str] | None = None):
         action="store_true",
         help="replace an existing report (cached runs are reused regardless)",
     )
+    store = parser.add_mutually_exclusive_group()
+    store.add_argument(
+        "--store",
+        default=None,
+        help=f"results store: every finished run's eval.json (and figure scenes) is kept "
+        f"there, to commit, and runs found there are not redone (default {DEFAULT_STORE}; "
+        "none with --quick)",
+    )
+    store.add_argument("--no-store", action="store_true", help="keep no results store")
+    parser.add_argument(
+        "--budget-minutes",
+        type=float,
+        default=None,
+        help="start no run after this many minutes: running ones finish, the report covers "
+        "what is done, and a rerun continues (default: no limit)",
+    )
     return parser.parse_args(argv)
 
 
@@ -157,6 +181,16 @@ def protocol_from_args(args) -> Protocol:
     )
 
 
+def store_path(args) -> Path | None:
+    """The results store the arguments ask for (None: keep none)."""
+    if args.no_store or (args.quick and args.store is None):
+        return None
+    store = Path(args.store or DEFAULT_STORE)
+    if store.exists() and not store.is_dir():
+        fail(f"--store {store} exists and is not a directory")
+    return store
+
+
 def output_paths(args) -> tuple[Path, Path]:
     """(cache directory, report path); exit 2 if the report exists without --overwrite."""
     out_dir = Path(
@@ -180,10 +214,16 @@ def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     protocol = protocol_from_args(args)
     out_dir, report = output_paths(args)
+    store = store_path(args)
+    if args.budget_minutes is not None and not args.budget_minutes > 0:
+        fail(f"--budget-minutes must be positive, got {args.budget_minutes}")
+    budget_s = None if args.budget_minutes is None else 60.0 * args.budget_minutes
     command = "python tools/reproduce.py " + " ".join(sys.argv[1:] if argv is None else argv)
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # inherited by the spawned workers
     try:
-        done = reproduce(protocol, out_dir, report, args.jobs, command, args.overwrite)
+        done = reproduce(
+            protocol, out_dir, report, args.jobs, command, args.overwrite, store, budget_s
+        )
     except KeyboardInterrupt:
         fail(
             "interrupted; finished runs are cached: run the same command again to resume", code=130
@@ -196,7 +236,8 @@ def main(argv: list[str] | None = None) -> None:
     print(
         f"wrote {report} (+ {report.with_name('results.json').name}, {done.figures} figures in "
         f"{report.parent / 'results'}): {counts.runs} runs ({counts.trained} trained, "
-        f"{counts.resumed} resumed, {counts.reused} reused, {counts.failed} failed), "
+        f"{counts.resumed} resumed, {counts.reused} reused, {counts.failed} failed"
+        f"{f', {counts.skipped} left for a later run (budget)' if counts.skipped else ''}), "
         f"{counts.datasets_generated} datasets generated, {counts.datasets_reused} "
         f"reused, in {done.seconds:.1f} s"
     )

@@ -216,8 +216,10 @@ def how_produced(report: Report) -> str:
             f"seeds per trained variant: {protocol.seeds} ({seeds}); "
             f"`const_vel` once per setting (deterministic)",
             f"- Runs: {counts.runs} ({counts.trained} trained now, {counts.resumed} "
-            f"resumed, {counts.reused} reused from the cache, {counts.failed} failed); "
-            f"datasets: {counts.datasets_generated} generated, "
+            f"resumed, {counts.reused} reused from the cache or the results store "
+            f"({counts.reused_from_store} from the store), {counts.failed} failed"
+            + (f", {counts.skipped} not started: time budget" if counts.skipped else "")
+            + f"); datasets: {counts.datasets_generated} generated, "
             f"{counts.datasets_reused} reused",
             f"- Statistics: {STATISTICS}",
             "- Machine-readable results (per run and aggregated): `results.json` beside this file",
