@@ -61,6 +61,21 @@ def _action_array(agent: str, action: Any) -> np.ndarray:
     )
 
 
+def revised_manual(
+    manual: str, description: str, history: str, changes: Mapping[str, str] = {}
+) -> str:
+    """A new version's user manual from the previous version's class docstring: its own
+    `description` (title and "## Description" section) and `history` ("## Version History"
+    section), the sections in between kept with the exact text `changes` (old -> new) made.
+    Raises ValueError if a changed text is not in the old manual (so the two cannot drift)."""
+    body = manual[manual.index("## Action Space") : manual.index("## Version History")]
+    for old, new in changes.items():
+        if old not in body:
+            raise ValueError(f"the previous manual has no {old!r}: update the new version's")
+        body = body.replace(old, new)
+    return description.rstrip() + "\n\n    " + body + history
+
+
 def env_metadata(name: str, scenario_class: type[Scenario]) -> dict[str, Any]:
     """Class-level PettingZoo metadata of a scenario env: one frame per env step of the
     scenario's default configuration (instances recompute render_fps from their own config)."""

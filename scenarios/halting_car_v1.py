@@ -12,7 +12,7 @@ from typing import Any
 from pettingzoo.utils.conversions import parallel_to_aec
 from pettingzoo.utils.env import AECEnv
 
-from scenarios.env import env_metadata
+from scenarios.env import env_metadata, revised_manual
 from scenarios.halting_car_reactive import ReactiveHaltingCar
 from scenarios.halting_car_v0 import HaltingCarEnv
 
@@ -28,10 +28,7 @@ DESCRIPTION = """Halting Car v1: the leader's braking is observed, its follower'
     step t - delay), a time headway of 1.3 to 1.9 s and a desired speed 1.1 to 1.3 x the
     leader's cruise. `car_2` ... `car_21` are distractors driving straight at constant speed on
     lanes 0 and 3. All randomness comes from the reset seed; the ranges are the fields of
-    `scenarios.ReactiveHaltingCarConfig` (the `config` argument takes one). With a seed,
-    stepping every agent with `expert_actions()` reproduces
-    `scenarios.rollout(ReactiveHaltingCar(), seed, case)` exactly.
-
+    `scenarios.ReactiveHaltingCarConfig` (the `config` argument takes one).
 """
 HISTORY = """## Version History
     - v1: braking onset inside the observed window; follower reaction delay; headway 1.3-1.9 s.
@@ -39,21 +36,16 @@ HISTORY = """## Version History
     """
 
 
-def _manual(v0_manual: str) -> str:
-    """v0's manual with v1's description and version history (the rest is unchanged)."""
-    body = v0_manual[v0_manual.index("## Action Space") : v0_manual.index("## Version History")]
-    v0_split = "so that\n      the leader's stop falls in the predicted part"
-    if v0_split not in body:
-        raise RuntimeError("the v0 manual changed: update the v1 manual")
-    body = body.replace(
-        v0_split,
-        "so that\n      the leader's braking onset is observed and the follower's reaction is not",
-    )
-    return DESCRIPTION + "    " + body + HISTORY
+CHANGES = {
+    "so that\n      the leader's stop falls in the predicted part": "so that\n      the leader's "
+    "braking onset is observed and the follower's reaction is not",
+    "`scenarios.rollout(HaltingCar(),": "`scenarios.rollout(ReactiveHaltingCar(),",
+    "| HaltingCarConfig   |": "| ReactiveHaltingCarConfig |",
+}
 
 
 class HaltingCarV1Env(HaltingCarEnv):
-    __doc__ = _manual(HaltingCarEnv.__doc__)
+    __doc__ = revised_manual(HaltingCarEnv.__doc__, DESCRIPTION, HISTORY, CHANGES)
 
     scenario_class = ReactiveHaltingCar
     metadata = env_metadata("halting_car_v1", ReactiveHaltingCar)
