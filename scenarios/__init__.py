@@ -3,9 +3,10 @@
 Plain scenario classes (`DoubleMerge`, `HaltingCar`, registered in `SCENARIOS`) draw randomised
 episodes from a seed and drive every car with an expert policy; `rollout` records one episode as
 numpy arrays. The PettingZoo environments are the submodules `double_merge_v0`,
-`halting_car_v0` and `halting_car_v1` (imported on demand: `from scenarios import
-halting_car_v1`). Halting Car v1 (`ReactiveHaltingCar`, registered as "halting_car_v1") observes
-the leader's braking and predicts the follower's delayed reaction.
+`double_merge_v1`, `halting_car_v0` and `halting_car_v1` (imported on demand: `from scenarios
+import halting_car_v1`). The v1 scenarios (`ReactiveDoubleMerge`, `ReactiveHaltingCar`,
+registered as "double_merge_v1" and "halting_car_v1") make each labelled car's observed state
+decide the attending car's future; docs/scenarios.md compares the versions.
 """
 
 import importlib
@@ -13,6 +14,11 @@ from types import ModuleType
 
 from scenarios.base import ROLE_NAMES, Scenario, ScenarioConfig, ScenarioPlan
 from scenarios.double_merge import DoubleMerge, DoubleMergeConfig, DoubleMergePlan
+from scenarios.double_merge_reactive import (
+    ReactiveDoubleMerge,
+    ReactiveDoubleMergeConfig,
+    ReactiveDoubleMergePlan,
+)
 from scenarios.halting_car import HaltingCar, HaltingCarConfig, HaltingCarPlan
 from scenarios.halting_car_reactive import (
     ReactiveHaltingCar,
@@ -23,12 +29,14 @@ from scenarios.rollout import Episode, advance, rollout
 
 ENV_MODULES: dict[str, str] = {  # scenario name -> its PettingZoo environment module
     "double_merge": "scenarios.double_merge_v0",
+    "double_merge_v1": "scenarios.double_merge_v1",
     "halting_car": "scenarios.halting_car_v0",
     "halting_car_v1": "scenarios.halting_car_v1",
 }
 
 SCENARIOS: dict[str, type[Scenario]] = {
     DoubleMerge.name: DoubleMerge,
+    ReactiveDoubleMerge.name: ReactiveDoubleMerge,
     HaltingCar.name: HaltingCar,
     ReactiveHaltingCar.name: ReactiveHaltingCar,
 }
@@ -52,6 +60,9 @@ __all__ = [
     "HaltingCar",
     "HaltingCarConfig",
     "HaltingCarPlan",
+    "ReactiveDoubleMerge",
+    "ReactiveDoubleMergeConfig",
+    "ReactiveDoubleMergePlan",
     "ReactiveHaltingCar",
     "ReactiveHaltingCarConfig",
     "ReactiveHaltingCarPlan",

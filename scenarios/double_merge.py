@@ -199,7 +199,7 @@ class DoubleMerge(Scenario):
         else:
             rear_move = (self.merge_start_s, plan.rear_change_duration_s, waiting_y, front_lane)
         front_move = (
-            plan.front_change_start_s,
+            self.front_change_start(),
             plan.front_change_duration_s,
             front_lane,
             rear_lane,
@@ -210,6 +210,10 @@ class DoubleMerge(Scenario):
             control_time, start, duration, origin, goal
         )
         return target, rate, accel
+
+    def front_change_start(self) -> float:
+        """When the front car's lane change starts [s] (v0: the planned time)."""
+        return self.plan.front_change_start_s
 
     def attention_labels(self, world: World) -> np.ndarray:
         return self._labels.copy()

@@ -33,16 +33,19 @@ from scenarios import (
     DoubleMerge,
     DoubleMergeConfig,
     HaltingCar,
+    ReactiveDoubleMerge,
     ReactiveHaltingCar,
     double_merge_v0,
+    double_merge_v1,
     halting_car_v0,
     halting_car_v1,
     rollout,
 )
 
-MODULES = [double_merge_v0, halting_car_v0, halting_car_v1]
+MODULES = [double_merge_v0, double_merge_v1, halting_car_v0, halting_car_v1]
 SCENARIO_OF = {
     double_merge_v0: DoubleMerge,
+    double_merge_v1: ReactiveDoubleMerge,
     halting_car_v0: HaltingCar,
     halting_car_v1: ReactiveHaltingCar,
 }
