@@ -12,7 +12,7 @@ export PIP_DISABLE_PIP_VERSION_CHECK = 1
 
 $(STAMP): setup.cfg pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[dev,render]'
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[dev,render,ray]'
 	touch $(STAMP)
 
 venv: $(STAMP)

@@ -19,6 +19,7 @@ are stopped by this process.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import errno
 import gc
@@ -49,6 +50,7 @@ MAX_ATTEMPTS = 5  # replacement rounds for rejected (unsafe) episodes
 SPLIT_ORDER = ("train", "val", "test")
 _POLL_SECONDS = 0.1  # how often the parent looks for a recorded signal while workers run
 _MAX_CHUNK = 32  # most episodes per pool task (fewer tasks, but a progress bar that moves)
+BACKENDS = ("local", "ray")  # where episodes run: processes here, or Ray tasks
 
 
 @dataclass(frozen=True)
@@ -296,15 +298,45 @@ def _next_result(
             pass
 
 
+def _ray_chunk(task: tuple[str, list[Slot]]) -> list[Episode]:
+    """A Ray task: roll out a chunk of slots of a scenario."""
+    scenario_name, slots = task
+    if _SCENARIO is None or _SCENARIO.name != scenario_name:
+        _load_scenario(scenario_name)
+    return _run_chunk(slots)
+
+
+def _chunks(slots: list[Slot], workers: int) -> list[list[Slot]]:
+    """Consecutive chunks of at most _MAX_CHUNK slots, about 8 per worker."""
+    size = max(1, min(_MAX_CHUNK, len(slots) // (8 * workers)))
+    return [slots[i : i + size] for i in range(0, len(slots), size)]
+
+
 def _run_slots(
-    slots: list[Slot], scenario_name: str, workers: int, progress: tqdm, signals: _DeferredSignals
+    slots: list[Slot],
+    scenario_name: str,
+    workers: int,
+    progress: tqdm,
+    signals: _DeferredSignals,
+    backend: str = "local",
 ) -> list[Episode]:
-    """Roll out every slot, in order; the result does not depend on `workers`.
+    """Roll out every slot, in order; the result depends neither on `workers` nor `backend`.
 
     With workers > 1 the slots go to a pool in chunks, terminated on any exception
-    (KeyboardInterrupt included).
+    (KeyboardInterrupt included); with backend "ray", the chunks are Ray tasks in the running
+    Ray session (see `generate_episodes`).
     """
     episodes = []
+    if backend == "ray":
+        from pipeline.ray_backend import map_in_order
+
+        chunks = map_in_order(
+            _ray_chunk,
+            [(scenario_name, chunk) for chunk in _chunks(slots, workers)],
+            on_result=lambda chunk: progress.update(len(chunk)),
+            check=signals.check,
+        )
+        return [episode for chunk in chunks for episode in chunk]
     if workers == 1:
         _load_scenario(scenario_name)
         for slot in slots:
@@ -312,8 +344,7 @@ def _run_slots(
             progress.update()
             signals.check()
         return episodes
-    size = max(1, min(_MAX_CHUNK, len(slots) // (8 * workers)))
-    chunks = [slots[i : i + size] for i in range(0, len(slots), size)]
+    chunks = _chunks(slots, workers)
     context = multiprocessing.get_context("spawn" if sys.platform == "darwin" else "fork")
     with context.Pool(workers, initializer=_init_worker, initargs=(scenario_name,)) as pool:
         results = pool.imap(_run_chunk, chunks)  # chunksize 1: an iterator with next(timeout)
@@ -325,16 +356,27 @@ def _run_slots(
 
 
 def generate_episodes(
-    config: GenerateConfig, *, workers: int = 1, progress: bool = False
+    config: GenerateConfig,
+    *,
+    workers: int = 1,
+    progress: bool = False,
+    backend: str = "local",
+    address: str | None = None,
 ) -> tuple[list[Slot], list[Episode], int]:
     """Roll out every planned trajectory, replacing unsafe ones with fresh seeds.
 
     Returns the final slots, their episodes and how many episodes were rejected. Replacement
     seeds continue after the planned ones, in slot order, so the result is deterministic.
-    Raises UnsafeExpertError if some stay unsafe, KeyboardInterrupt on Ctrl-C (see the module).
+    `backend` "local" runs `workers` processes here; "ray" runs chunks as Ray tasks on the
+    cluster at `address` (else RAY_ADDRESS, else a local Ray instance with `workers` CPUs; see
+    pipeline.ray_backend), with the same result.
+    Raises UnsafeExpertError if some stay unsafe, KeyboardInterrupt on Ctrl-C (see the module),
+    RayUnavailableError if Ray is asked for but not installed.
     """
     if workers < 1:
         raise ValueError(f"workers must be at least 1, got {workers}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
     slots = plan(config)
     next_seed = SEED_STRIDE * config.seed + len(slots)
     episodes: list[Episode | None] = [None] * len(slots)
@@ -348,10 +390,16 @@ def generate_episodes(
         dynamic_ncols=True,
         disable=not progress,
     )
-    with _DeferredSignals() as signals, bar:
+    with contextlib.ExitStack() as stack:
+        if backend == "ray":
+            from pipeline.ray_backend import ray_session
+
+            stack.enter_context(ray_session(address, workers))
+        signals = stack.enter_context(_DeferredSignals())
+        stack.enter_context(bar)
         for _ in range(MAX_ATTEMPTS):
             results = _run_slots(
-                [slots[i] for i in pending], config.scenario, workers, bar, signals
+                [slots[i] for i in pending], config.scenario, workers, bar, signals, backend
             )
             retry = []
             for index, episode in zip(pending, results):
@@ -449,11 +497,14 @@ def generate_dataset(
     workers: int = 1,
     overwrite: bool = False,
     progress: bool = True,
+    backend: str = "local",
+    address: str | None = None,
 ) -> GenerationResult:
     """Roll out `config`'s trajectories, check them, and write the dataset to `out` atomically.
 
-    The output is the same for any `workers` (processes). Missing parent directories are
-    created. A progress bar goes to stderr unless `progress` is False.
+    The output is byte for byte the same for any `workers` and `backend` ("local": processes
+    here; "ray": Ray tasks, see `generate_episodes`). Missing parent directories are created.
+    A progress bar goes to stderr unless `progress` is False.
     Raises FileExistsError if `out` exists and not `overwrite` (checked before any work, and
     again when writing), IsADirectoryError if it is a directory, another OSError if it cannot be
     written, ValueError for workers < 1, UnsafeExpertError (see `generate_episodes`), and
@@ -464,7 +515,9 @@ def generate_dataset(
         raise ValueError(f"workers must be at least 1, got {workers}")
     _check_output(out, overwrite)
     start = time.perf_counter()
-    slots, episodes, rejected = generate_episodes(config, workers=workers, progress=progress)
+    slots, episodes, rejected = generate_episodes(
+        config, workers=workers, progress=progress, backend=backend, address=address
+    )
     scenario = SCENARIOS[config.scenario]()
     splits = _build_splits(slots, episodes, scenario)
     meta = _dataset_meta(config, scenario, rejected)

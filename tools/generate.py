@@ -18,12 +18,14 @@ from pathlib import Path
 
 from pipeline.cli import ArgumentParser, fail, run_main
 from pipeline.generation import (
+    BACKENDS,
     DEFAULT_MINOR_RATIO,
     GenerateConfig,
     UnsafeExpertError,
     default_output,
     generate_dataset,
 )
+from pipeline.ray_backend import RayUnavailableError
 from scenarios import SCENARIOS
 
 # config and generate_dataset errors name these fields; the user typed the flags
@@ -80,6 +82,19 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="worker processes; the output is identical for any number (default 1)",
     )
     parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="local",
+        help="local: --workers processes here (default); ray: Ray tasks on a cluster, the same "
+        "output (pip install -e '.[ray]')",
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        help="with --backend ray: the cluster (default $RAY_ADDRESS, else a local Ray instance "
+        "with --workers CPUs)",
+    )
+    parser.add_argument(
         "--out",
         default=None,
         help="output file (default data/<scenario>_<major>-major_<M>+<m>_seed<S>.h5)",
@@ -117,7 +132,14 @@ def main(argv: list[str] | None = None) -> None:
         fail(f"--workers must be at least 1, got {args.workers}")
     out = Path(args.out) if args.out is not None else default_output(config)
     try:
-        result = generate_dataset(config, out, workers=args.workers, overwrite=args.overwrite)
+        result = generate_dataset(
+            config,
+            out,
+            workers=args.workers,
+            overwrite=args.overwrite,
+            backend=args.backend,
+            address=args.address,
+        )
     except KeyboardInterrupt:
         fail("interrupted; nothing was written", code=130)
     except FileExistsError:
@@ -126,6 +148,8 @@ def main(argv: list[str] | None = None) -> None:
         fail(f"output {out} is a directory")
     except UnsafeExpertError as error:
         fail(str(error), code=1)
+    except RayUnavailableError as error:
+        fail(str(error))
     except OSError as error:
         detail = error.strerror or str(error)
         if error.filename is not None and Path(error.filename) != out:
