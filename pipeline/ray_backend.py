@@ -13,6 +13,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import signal
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -45,11 +47,26 @@ def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iter
     options = {"logging_level": logging.WARNING, "log_to_driver": False}
     if address is None:
         options.update(num_cpus=num_cpus, include_dashboard=False)
+    handlers = _signal_handlers()
     ray.init(address=address, **options)
+    _restore(handlers)  # in case Ray installed its own: Ctrl-C stays the caller's business
     try:
         yield ray
     finally:
         ray.shutdown()
+
+
+def _signal_handlers() -> dict:
+    """The current SIGINT and SIGTERM handlers (only in the main thread, where they can be set)."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
+
+
+def _restore(handlers: dict) -> None:
+    for signum, handler in handlers.items():
+        if handler is not None:
+            signal.signal(signum, handler)
 
 
 def map_in_order(
