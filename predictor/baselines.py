@@ -250,7 +250,7 @@ class RidgeBaseline:
         if mode == "none":
             return []
         if mode == "labelled":
-            return [_scene_label(attention)]
+            return [scene_labels(attention)]
         num_agents = last.shape[1]
         unusable = ~present[:, None, :] | np.eye(num_agents, dtype=bool)[None]  # (n, N, N)
         if mode == "random":  # a uniform draw among the other present agents
@@ -296,7 +296,7 @@ class RidgeBaseline:
         return offset.reshape(offset.shape[0], offset.shape[1], -1)
 
 
-def _scene_label(attention: np.ndarray) -> np.ndarray:
+def scene_labels(attention: np.ndarray) -> np.ndarray:
     """(n, T, N) labels -> (n, N): each agent's most frequent attended agent (-1: none)."""
     n, _, num_agents = attention.shape
     counts = np.zeros((n, num_agents, num_agents + 1), dtype=np.int64)

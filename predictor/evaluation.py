@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +26,7 @@ import torch
 from predictor.baselines import BASELINES, RidgeBaseline, RidgeConfig, constant_velocity
 from predictor.config import ModelConfig, model_config_from_dict
 from predictor.data import Batch, TrajectoryDataset
+from predictor.diagnostics import counterfactual_shift, error_curves, one_step_errors
 from predictor.format import DatasetMeta, TrajectorySet
 from predictor.metrics import (
     attention_accuracy,
@@ -112,12 +113,23 @@ def predict_baseline(
     """(pred_mean, attention, details) of baseline `name` on `data`, shaped as `predict_model`'s
     outputs; the attention is NaN. A ridge baseline is fitted on `fit` first (required for them);
     `details` describes the fit (empty for const_vel)."""
+    predict, details = fit_baseline(name, meta, fit)
+    shape = (data.n, data.num_steps - 1, data.num_agents, data.num_agents)
+    return predict(data), np.full(shape, np.nan, dtype=np.float32), details
+
+
+def fit_baseline(
+    name: str, meta: DatasetMeta, fit: TrajectorySet | None = None
+) -> tuple[Callable[[TrajectorySet], np.ndarray], dict[str, Any]]:
+    """(predict, details): `predict(data)` gives baseline `name`'s predicted means
+    (n, T_pred, N, 2) [m] on any scenes of `meta`'s kind; a ridge baseline is fitted on `fit`
+    once, here (EvaluationError if it cannot be). `details` describes the fit."""
     if name not in BASELINES:
         raise EvaluationError(f"unknown baseline {name!r}; choose from {', '.join(BASELINES)}")
-    shape = (data.n, data.num_steps - 1, data.num_agents, data.num_agents)
-    attention = np.full(shape, np.nan, dtype=np.float32)
     if name == "const_vel":
-        return constant_velocity(data.states[..., :2], data.valid, meta.num_observed), attention, {}
+        return lambda data: constant_velocity(
+            data.states[..., :2], data.valid, meta.num_observed
+        ), {}
     if fit is None or fit.n == 0:
         raise EvaluationError(f"the {name} baseline needs training scenes to fit on")
     try:
@@ -126,13 +138,12 @@ def predict_baseline(
         )
     except ValueError as err:
         raise EvaluationError(f"cannot fit the {name} baseline: {err}") from None
-    pred = ridge.predict(data.states, data.valid, data.attention, data.roles)
     details = {
         "fit_scenes": fit.n,
         "history_steps": ridge.history,
         "alpha": {meta.role_names[role]: alpha for role, alpha in sorted(ridge.alpha.items())},
     }
-    return pred, attention, details
+    return lambda data: ridge.predict(data.states, data.valid, data.attention, data.roles), details
 
 
 def score(predictions: Predictions) -> dict:
@@ -174,6 +185,7 @@ class Evaluation:
     predictions: Predictions  # every scene of the split, in file order
     source: RunSource | None = None  # None for a baseline
     baseline: dict[str, Any] | None = None  # a fitted baseline's fit: split, scenes, alpha...
+    diagnostics: dict[str, Any] | None = None  # error curves, one-step error, counterfactual
 
     @property
     def split(self) -> str:
@@ -205,7 +217,8 @@ class Evaluation:
             )
         if self.baseline is not None:
             info["baseline_fit"] = self.baseline
-        return {**info, **self.scores}
+        extra = {} if self.diagnostics is None else {"diagnostics": self.diagnostics}
+        return {**info, **self.scores, **extra}
 
     def headline(self) -> str:
         """One line with the main-agent ADE/FDE and the attention accuracy."""
@@ -250,7 +263,15 @@ def evaluate_run(
         train_data=str(stored["data"]["path"]),
     )
     variant = str(stored["train_config"]["variant"])
-    return _evaluation(dataset, variant, pred_mean, attention, source)
+    batch, num_observed = dataset.all(), dataset.meta.num_observed
+
+    def predict(states: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        moved = replace(batch, states=torch.from_numpy(states), valid=torch.from_numpy(valid))
+        return predict_model(model, moved, num_observed, batch_size)[0]
+
+    diagnostics = {"one_step": one_step_errors(model, batch, num_observed, batch_size)}
+    diagnostics.update(_common_diagnostics(dataset, pred_mean, predict))
+    return _evaluation(dataset, variant, pred_mean, attention, source, diagnostics=diagnostics)
 
 
 def evaluate_baseline(
@@ -268,10 +289,19 @@ def evaluate_baseline(
     fit = None
     if name != "const_vel":
         fit = dataset.data if fit_split == split else _load_split(data_path, fit_split).data
-    pred_mean, attention, details = predict_baseline(name, dataset.data, dataset.meta, fit)
+    predict_data, details = fit_baseline(name, dataset.meta, fit)
+    data = dataset.data
+    pred_mean = predict_data(data)
+    shape = (data.n, data.num_steps - 1, data.num_agents, data.num_agents)
+    attention = np.full(shape, np.nan, dtype=np.float32)
     if details:
         details = {"fit_split": fit_split, **details}
-    return _evaluation(dataset, name, pred_mean, attention, None, details)
+
+    def predict(states: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        return predict_data(replace(data, states=states, valid=valid))
+
+    diagnostics = _common_diagnostics(dataset, pred_mean, predict)
+    return _evaluation(dataset, name, pred_mean, attention, None, details, diagnostics)
 
 
 def check_data_matches(
@@ -314,6 +344,7 @@ def _evaluation(
     attention: np.ndarray,
     source: RunSource | None,
     baseline: dict[str, Any] | None = None,
+    diagnostics: dict[str, Any] | None = None,
 ) -> Evaluation:
     predictions = Predictions.from_split(
         dataset.data, dataset.meta, dataset.split, predictor, pred_mean, attention
@@ -326,4 +357,17 @@ def _evaluation(
         predictions=predictions,
         source=source,
         baseline=baseline or None,
+        diagnostics=diagnostics,
     )
+
+
+def _common_diagnostics(dataset: TrajectoryDataset, pred_mean: np.ndarray, predict) -> dict:
+    """Error curves and the counterfactual check of any predictor (see predictor.diagnostics)."""
+    data, num_observed = dataset.data, dataset.meta.num_observed
+    true = data.states[:, num_observed:, :, :2]
+    return {
+        "error_curve": error_curves(pred_mean, true, data.valid, num_observed),
+        "counterfactual": counterfactual_shift(
+            predict, data.states, data.valid, data.attention, num_observed
+        ),
+    }

@@ -39,10 +39,19 @@ def gaussian_nll(target: Tensor, mean: Tensor, tril: Tensor) -> Tensor:
     return 0.5 * (z0 * z0 + z1 * z1) + log_det_half + LOG_2PI  # (...)
 
 
+PENALTY_MAX_STD_M = 50.0  # [m] stds above count as this in the variance penalty (see below)
+
+
 def variance_penalty(gaussian: Gaussian2D, tau: float) -> Tensor:
-    """sum_k exp(sigma_k) * 1[sigma_k > tau] with sigma_k = sqrt(Sigma_kk) [m]: (...)."""
+    """sum_k exp(sigma_k) * 1[sigma_k > tau] with sigma_k = sqrt(Sigma_kk) [m]: (...).
+
+    sigma_k enters as min(sigma_k, PENALTY_MAX_STD_M): exp overflows float32 beyond ~88 m
+    (an infinite loss ends the run), while exp(50) ~ 5e21 is still finite when summed over a
+    batch; the likelihood keeps pulling such stds towards the errors.
+    """
     stds = gaussian.stds()  # (..., 2)
-    return (torch.exp(stds) * (stds > tau).to(stds.dtype)).sum(-1)  # (...)
+    capped = stds.clamp(max=PENALTY_MAX_STD_M)
+    return (torch.exp(capped) * (stds > tau).to(stds.dtype)).sum(-1)  # (...)
 
 
 def safe_sqrt(x: Tensor) -> Tensor:
@@ -63,6 +72,12 @@ def attention_tv(attention: Tensor, present: Tensor) -> tuple[Tensor, Tensor]:
     return (norms * both.to(norms.dtype)).sum(), both.sum()
 
 
+def distance(target: Tensor, mean: Tensor) -> Tensor:
+    """Euclidean distance |target - mean| over the last dim (..., 2) -> (...), with a zero
+    (sub)gradient where it is exactly zero."""
+    return safe_sqrt(((target - mean) ** 2).sum(-1))
+
+
 def masked_sum(values: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
     """(sum of values where mask, number of such items)."""
     return (values * mask.to(values.dtype)).sum(), mask.sum()
@@ -80,12 +95,21 @@ class LossWeights:
     beta2: float = 0.01  # attention total variation
     tau: float = 1e-3  # [m] threshold of the variance penalty
     sequence: bool = True  # include the rollout terms
+    # "nll": the NLL trains means and covariances; "displacement": the means' displacement error
+    # [m] trains the means, the NLL around the detached means the covariances (TrainConfig)
+    mean_loss: str = "nll"
+    # score a one-step prediction only where the agent's previous position is known: the first
+    # step of a track has no velocity, so its prediction misses by a whole step (~2 m) and that
+    # unlearnable error would dominate every other one-step error (~1-10 mm)
+    needs_previous: bool = False
 
 
 def compute_loss(
     out: ModelOutput, positions: Tensor, valid: Tensor, num_observed: int, weights: LossWeights
 ) -> tuple[Tensor, dict[str, float]]:
-    """Total loss L = nll + nll_seq + beta1 (var + var_seq) + beta2 (tv + tv_seq) and its terms.
+    """Total loss L = nll + nll_seq + beta1 (var + var_seq) + beta2 (tv + tv_seq) and its terms
+    (with mean_loss "displacement", plus de and de_seq: the one-step and rollout means' mean
+    displacement errors [m], while the NLL terms see detached means).
 
     positions (B, T, N, 2) [m], valid (B, T, N). One-step terms cover t = 1 .. T-1 where the agent
     is present at t and t-1; rollout terms cover t = T_obs .. T-1 where the agent is present at t
@@ -94,18 +118,29 @@ def compute_loss(
     terms: dict[str, Tensor] = {}
     target = positions[:, 1:]  # (B, T-1, N, 2)
     mask = valid[:, 1:] & valid[:, :-1]  # (B, T-1, N)
+    if weights.needs_previous:
+        mask = mask & torch.cat([torch.zeros_like(valid[:, :1]), valid[:, :-2]], 1)
     one = out.one_step
-    terms["nll"] = _mean(*masked_sum(gaussian_nll(target, one.mean, one.tril), mask))
+    displacement = weights.mean_loss == "displacement"
+    one_mean = one.mean.detach() if displacement else one.mean
+    terms["nll"] = _mean(*masked_sum(gaussian_nll(target, one_mean, one.tril), mask))
     terms["var"] = _mean(*masked_sum(variance_penalty(one, weights.tau), mask))
     terms["tv"] = _mean(*attention_tv(out.attention, valid[:, :-1]))
     total = terms["nll"] + weights.beta1 * terms["var"] + weights.beta2 * terms["tv"]
+    if displacement:
+        terms["de"] = _mean(*masked_sum(distance(target, one.mean), mask))
+        total = total + terms["de"]
     if weights.sequence:
         if out.rollout is None:
             raise ValueError("the sequence loss needs a rollout")
         roll = out.rollout
         seq_mask = valid[:, num_observed:] & out.rollout_present.unsqueeze(1)  # (B, T_pred, N)
         seq_target = positions[:, num_observed:]  # (B, T_pred, N, 2)
-        seq_nll = gaussian_nll(seq_target, roll.mean, roll.tril)  # (B, T_pred, N)
+        roll_mean = roll.mean.detach() if displacement else roll.mean
+        seq_nll = gaussian_nll(seq_target, roll_mean, roll.tril)  # (B, T_pred, N)
+        if displacement:
+            terms["de_seq"] = _mean(*masked_sum(distance(seq_target, roll.mean), seq_mask))
+            total = total + terms["de_seq"]
         terms["nll_seq"] = _mean(*masked_sum(seq_nll, seq_mask))
         terms["var_seq"] = _mean(*masked_sum(variance_penalty(roll, weights.tau), seq_mask))
         # rollout attention theta^t, t = T_obs-1 .. T-2: agents rolled out are present throughout

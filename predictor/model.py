@@ -48,6 +48,10 @@ from predictor.config import ModelConfig
 
 LSTMState = tuple[Tensor, Tensor]
 MAX_LOG_GAIN = 12.0  # cap of log(std excess / initial excess): stds stay finite
+# agent-frame features, 2 each: own position, own velocity, relative position, relative velocity
+NUM_FEATURES = 8
+MIN_HEADING_STEP_M = 1e-3  # [m] below this last displacement the heading is the world x axis
+MIN_STAT_STD = 1e-4  # floor of the fitted standard deviations (in metres)
 
 
 @dataclass
@@ -192,16 +196,41 @@ class SmoothAttentionPredictor(nn.Module):
         emb, hid = config.embed_dim, config.edge_hidden
         self.f_embed = nn.Sequential(nn.Linear(2, emb), nn.ReLU())
         self.f_self = nn.Sequential(nn.Linear(4, emb), nn.ReLU())
-        self.f_interact = nn.Sequential(nn.Linear(4, emb), nn.ReLU())
+        edge_in = 6 if config.edge_velocity else 4
+        self.f_interact = nn.Sequential(nn.Linear(edge_in, emb), nn.ReLU())
+        if config.frame == "agent":  # input normalisation; fit_normalisation sets it from data
+            self.register_buffer("input_mean", torch.zeros(NUM_FEATURES))
+            self.register_buffer("input_std", torch.ones(NUM_FEATURES))
+            self.register_buffer("offset_std", torch.ones(2))
+            self._default_normalisation()
         self.g_self = nn.LSTM(emb, hid)
         self.g_interact = nn.LSTM(emb, hid)
         learned = config.attention_mode == "learned"
         self.f_attn = nn.Linear(hid, config.attn_dim) if learned else None
         self.g_pred = nn.LSTM(emb + 2 * hid, config.node_hidden)
-        self.f_pred = nn.Linear(config.node_hidden, 5)  # offset (2), Cholesky raw (3)
+        if config.detach_covariance:  # separate heads: offset (2), Cholesky raw (3)
+            self.f_pred = nn.Linear(config.node_hidden, 2)
+            self.f_cov = nn.Linear(config.node_hidden, 3)
+        else:
+            self.f_pred = nn.Linear(config.node_hidden, 5)  # offset (2), Cholesky raw (3)
+            self.f_cov = None
         with torch.no_grad():  # start exactly at the mean prior, stds init_std_m, no correlation
-            self.f_pred.weight.zero_()
-            self.f_pred.bias.zero_()
+            for layer in (self.f_pred, self.f_cov):
+                if layer is not None:
+                    layer.weight.zero_()
+                    layer.bias.zero_()
+
+    def parameter_groups(self) -> list[list[nn.Parameter]]:
+        """Parameters whose gradients come from separate losses (with `detach_covariance`: the
+        covariance head, trained by the likelihood alone, and the rest), for per-group gradient
+        clipping; one group otherwise."""
+        if self.f_cov is None:
+            return [list(self.parameters())]
+        head = {id(p) for p in self.f_cov.parameters()}
+        return [
+            [p for p in self.parameters() if id(p) not in head],
+            list(self.f_cov.parameters()),
+        ]
 
     # ----------------------------------------------------------------------------- public API
     def forward(
@@ -211,9 +240,11 @@ class SmoothAttentionPredictor(nn.Module):
         num_observed: int,
         labels: Tensor | None = None,
         rollout: bool = True,
+        sample: bool = True,
     ) -> ModelOutput:
         """Training pass: teacher-forced one-step predictions of t = 1 .. T-1 and, if `rollout`,
-        a rollout from step T_obs-1 that feeds back reparameterised samples.
+        a rollout from step T_obs-1 that feeds back reparameterised samples (`sample`) or the
+        predicted means (differentiable either way).
 
         positions (B, T, N, 2) [m], valid (B, T, N) bool, labels (B, T, N) int (-1 none; needed
         for oracle attention). The rollout reuses the teacher-forced recurrent states after the
@@ -227,7 +258,7 @@ class SmoothAttentionPredictor(nn.Module):
         attention = torch.cat([p.attention for p in parts], 0).transpose(0, 1)  # (B, T-1, N, N-1)
         out = ModelOutput(one_step=one_step, attention=attention)
         if rollout:
-            out = out.with_rollout(self._rollout(steps, observed, sample=True))
+            out = out.with_rollout(self._rollout(steps, observed, sample=sample))
         return out
 
     @torch.no_grad()
@@ -267,6 +298,9 @@ class SmoothAttentionPredictor(nn.Module):
             labels=None if labels is None else labels.transpose(0, 1).long(),  # (T, B, N)
             origin=scene_origin(positions, valid, num_observed - 1),  # (B, 2)
             num_observed=num_observed,
+            frame=agent_frames(positions, valid, num_observed)
+            if self.config.frame == "agent"
+            else None,
         )
 
     def _block(
@@ -286,7 +320,7 @@ class SmoothAttentionPredictor(nn.Module):
             sl = slice(first, min(first + self.config.chunk_steps, stop))
             labels = None if steps.labels is None else steps.labels[sl]
             chunk = self._run(
-                steps.pos[sl], steps.prev_pos[sl], steps.present[sl], steps.origin, labels, state
+                steps.pos[sl], steps.prev_pos[sl], steps.present[sl], steps, labels, state
             )
             chunks.append(chunk)
             state = chunk.state
@@ -308,7 +342,7 @@ class SmoothAttentionPredictor(nn.Module):
             current = gaussian.rsample() if sample else gaussian.mean  # (B, N, 2)
             current = torch.where(present.unsqueeze(-1), current, torch.zeros_like(current))
             labels = None if steps.labels is None else steps.labels[t : t + 1]  # (1, B, N)
-            block = self._run(current[None], prev[None], present[None], steps.origin, labels, state)
+            block = self._run(current[None], prev[None], present[None], steps, labels, state)
             gaussian = Gaussian2D(block.gaussian.mean[0], block.gaussian.tril[0])  # (B, N, .)
             gaussians.append(gaussian)
             attentions.append(block.attention[0])
@@ -327,7 +361,7 @@ class SmoothAttentionPredictor(nn.Module):
         pos: Tensor,
         prev_pos: Tensor,
         present: Tensor,
-        origin: Tensor,
+        steps: _Steps,
         labels: Tensor | None,
         state: RecurrentState | None,
     ) -> StepOutputs:
@@ -336,11 +370,14 @@ class SmoothAttentionPredictor(nn.Module):
         cfg = self.config
         tail, head = edge_index(num_agents, pos.device)  # (M,), (M,)
         mask = present.unsqueeze(-1)  # (S, B, N, 1)
-        rel = (pos - origin[None, :, None]) / cfg.position_scale_m  # (S, B, N, 2)
-        rel = torch.where(mask, rel, torch.zeros_like(rel))  # (S, B, N, 2)
-        step = torch.where(mask, (pos - prev_pos) / cfg.step_scale_m, torch.zeros_like(pos))
+        if steps.frame is None:
+            rel = (pos - steps.origin[None, :, None]) / cfg.position_scale_m  # (S, B, N, 2)
+            rel = torch.where(mask, rel, torch.zeros_like(rel))  # (S, B, N, 2)
+            step = torch.where(mask, (pos - prev_pos) / cfg.step_scale_m, torch.zeros_like(pos))
+            x_edge = self._edge_inputs(rel, head)  # (S, B, N, N-1, E)
+        else:
+            rel, step, x_edge = self._agent_inputs(pos, prev_pos, present, steps.frame, head)
         x_self = self.f_self(torch.cat([rel, step], -1))  # (S, B, N, E)
-        x_edge = self._edge_inputs(rel, head)  # (S, B, N, N-1, E)
         state = state or RecurrentState(None, None, None)
         o_edge, h_edge = self.g_interact(x_edge.flatten(1, 3), state.edge)  # (S, B*M, H)
         o_self, h_self = self.g_self(x_self.flatten(1, 2), state.self_loop)  # (S, B*N, H)
@@ -350,10 +387,84 @@ class SmoothAttentionPredictor(nn.Module):
         attended = (theta.unsqueeze(-1) * o_edge).sum(-2)  # (S, B, N, H)
         node_in = torch.cat([self.f_embed(rel), attended, o_self], -1)  # (S, B, N, E+2H)
         o_node, h_node = self.g_pred(node_in.flatten(1, 2), state.node)  # (S, B*N, Hn)
-        raw = self.f_pred(o_node).view(num_steps, batch, num_agents, 5)  # (S, B, N, 5)
+        raw = self._raw_outputs(o_node).view(num_steps, batch, num_agents, 5)  # (S, B, N, 5)
         base = pos + (pos - prev_pos) if cfg.mean_prior == "velocity" else pos  # (S, B, N, 2)
-        gaussian = self._gaussian(raw, base)
+        if steps.frame is None:
+            gaussian = self._gaussian(raw, base)
+        else:
+            gaussian = self._agent_gaussian(raw, base, steps.frame[1])
         return StepOutputs(gaussian, theta, RecurrentState(h_edge, h_self, h_node))
+
+    def _raw_outputs(self, o_node: Tensor) -> Tensor:
+        """F_pred(o_node) (..., 5): mean offset (2) and Cholesky raw values (3); with
+        `detach_covariance` the last three see the features through a stop-gradient."""
+        if self.f_cov is None:
+            return self.f_pred(o_node)
+        return torch.cat([self.f_pred(o_node), self.f_cov(o_node.detach())], -1)
+
+    def _agent_inputs(
+        self, pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFrame, head: Tensor
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """Standardised agent-frame inputs: own position (S, B, N, 2), own velocity (S, B, N, 2)
+        and the edge embeddings x_ij (S, B, N, N-1, E) of (own position, relative position
+        [, relative velocity]) in agent i's frame; zeros where an agent is absent."""
+        own, pair = agent_features(pos, prev_pos, present, frame, head)
+        own = (own - self.input_mean[:4]) / self.input_std[:4]  # (S, B, N, 4)
+        pair = (pair - self.input_mean[4:]) / self.input_std[4:]  # (S, B, N, N-1, 4)
+        own = torch.where(present.unsqueeze(-1), own, 0.0)
+        both = edge_present(present, head)  # (S, B, N, N-1)
+        pair = torch.where(both.unsqueeze(-1), pair, 0.0)
+        width = 4 if self.config.edge_velocity else 2
+        own_per_edge = own[..., :2].unsqueeze(3).expand(*pair.shape[:-1], 2)
+        x_edge = self.f_interact(torch.cat([own_per_edge, pair[..., :width]], -1))
+        return own[..., :2], own[..., 2:], x_edge
+
+    def _agent_gaussian(self, raw: Tensor, base: Tensor, rotation: Tensor) -> Gaussian2D:
+        """Next-position Gaussian with offset and Cholesky factor in the agent frame, rotated to
+        world axes; the offset unit is `offset_std` ("deviation") or step_scale_m ("step")."""
+        cfg = self.config
+        scale = self.offset_std if cfg.offset_scale == "deviation" else cfg.step_scale_m
+        offset = rotate(raw[..., :2] * scale, rotation)  # (..., 2)
+        local = self._gaussian(raw, torch.zeros_like(base))
+        return Gaussian2D(base + offset, rotate_tril(local.tril, rotation))
+
+    @torch.no_grad()
+    def fit_normalisation(self, positions: Tensor, valid: Tensor, num_observed: int) -> None:
+        """Set the input means/stds (if `standardise`) and the offset scale (if
+        offset_scale="deviation") from (training) scenes (B, T, N, 2), (B, T, N).
+
+        Features are those the model sees (agent frames as in `agent_frames`), over present
+        agent-steps (edges: both agents present). `offset_std` is the RMS per axis of the
+        agent-frame one-step deviation from constant velocity, p^{t+1} - 2 p^t + p^{t-1}
+        (zero mean by construction, so a zero output stays constant velocity).
+        """
+        if self.config.frame != "agent":
+            raise ValueError("fit_normalisation needs frame='agent'")
+        steps = self._prepare(positions, valid, num_observed, None)
+        present = steps.present
+        if self.config.standardise:
+            _, head = edge_index(positions.shape[2], positions.device)
+            own, pair = agent_features(steps.pos, steps.prev_pos, present, steps.frame, head)
+            own, pair = own[present], pair[edge_present(present, head)]  # (K, 4), (K2, 4)
+            self.input_mean.copy_(torch.cat([own.mean(0), pair.mean(0)]))
+            std = torch.cat([own.std(0), pair.std(0)])
+            self.input_std.copy_(std.clamp(min=MIN_STAT_STD))
+        if self.config.offset_scale == "deviation":
+            pos, prev = steps.pos, steps.prev_pos
+            dev = pos[1:] - 2 * pos[:-1] + prev[:-1]  # (T-1, B, N, 2)
+            before = torch.cat([present[:1] & False, present[:-2]], 0)  # (T-1, B, N) at t-1
+            ok = present[1:] & present[:-1] & before
+            local = rotate(dev, steps.frame[1], inverse=True)[ok]  # (K, 2)
+            self.offset_std.copy_(local.pow(2).mean(0).sqrt().clamp(min=MIN_STAT_STD))
+
+    def _default_normalisation(self) -> None:
+        """Unfitted scales: the car constants of the paper model (used when not standardise)."""
+        cfg = self.config
+        scales = [cfg.position_scale_m] * 2 + [cfg.step_scale_m] * 2
+        scales += [cfg.interaction_scale_m] * 2 + [cfg.step_scale_m] * 2
+        with torch.no_grad():
+            self.input_std.copy_(torch.tensor(scales))
+            self.offset_std.fill_(cfg.step_scale_m)
 
     def _edge_inputs(self, rel: Tensor, head: Tensor) -> Tensor:
         """x_ij = F_interact(concat(s_i, s_j - s_i)), all edges: (S, B, N, 2) -> (S, B, N, N-1, E).
@@ -416,3 +527,83 @@ class _Steps:
     labels: Tensor | None  # (T, B, N) int64 attention labels, -1 none
     origin: Tensor  # (B, 2) [m]
     num_observed: int
+    frame: AgentFrame | None = None  # agent frames (frame="agent") or None (scene frame)
+
+
+AgentFrame = tuple[Tensor, Tensor]  # origins (B, N, 2) [m], rotations (cos, sin) (B, N, 2)
+
+
+def rotate(vectors: Tensor, rotation: Tensor, inverse: bool = False) -> Tensor:
+    """Rotate (..., B, N, 2) vectors by per-agent (cos, sin) (B, N, 2); `inverse`: by minus."""
+    cos, sin = rotation[..., 0], rotation[..., 1]  # (B, N)
+    if inverse:
+        sin = -sin
+    x, y = vectors[..., 0], vectors[..., 1]
+    return torch.stack([cos * x - sin * y, sin * x + cos * y], -1)
+
+
+def rotate_tril(tril: Tensor, rotation: Tensor) -> Tensor:
+    """Cholesky entries (l11, l21, l22) of R Sigma R^T from those of Sigma (closed form).
+
+    l22 comes from det(Sigma) = (l11 l22)^2, which rotation keeps, so it stays positive.
+    """
+    cov = Gaussian2D(torch.zeros_like(tril[..., :2]), tril).covariance()  # (..., 2, 2)
+    cos, sin = rotation[..., 0], rotation[..., 1]
+    rot = torch.stack([torch.stack([cos, -sin], -1), torch.stack([sin, cos], -1)], -2)
+    world = rot @ cov @ rot.transpose(-1, -2)  # (..., 2, 2)
+    l11 = world[..., 0, 0].sqrt()
+    l21 = world[..., 1, 0] / l11
+    l22 = tril[..., 0] * tril[..., 2] / l11
+    return torch.stack([l11, l21, l22], -1)
+
+
+def agent_frames(positions: Tensor, valid: Tensor, num_observed: int) -> AgentFrame:
+    """Each agent's frame: origin at its last observed position (first present one if it
+    enters later), heading along its displacement into that step (world x if it did not move
+    or was absent before). positions (B, T, N, 2), valid (B, T, N)."""
+    num_steps = positions.shape[1]
+    steps = torch.arange(num_steps, device=positions.device).view(1, -1, 1)  # (1, T, 1)
+    observed = valid & (steps < num_observed)  # (B, T, N)
+    last = torch.where(observed, steps, -1).amax(1)  # (B, N)
+    first = torch.where(valid, steps, num_steps).amin(1).clamp(max=num_steps - 1)  # (B, N)
+    anchor = torch.where(last >= 0, last, first)  # (B, N)
+    before = (anchor - 1).clamp(min=0)
+
+    def take(index: Tensor) -> Tensor:  # positions at per-agent steps: (B, N) -> (B, N, 2)
+        return positions.gather(1, index[:, None, :, None].expand(-1, 1, -1, 2))[:, 0]
+
+    was = valid.gather(1, before[:, None])[:, 0] & (anchor > 0)  # (B, N)
+    origin = take(anchor)  # (B, N, 2)
+    step = torch.where(was.unsqueeze(-1), origin - take(before), 0.0)  # (B, N, 2)
+    length = step.norm(dim=-1, keepdim=True)  # (B, N, 1)
+    moving = length > MIN_HEADING_STEP_M
+    unit = torch.tensor([1.0, 0.0], dtype=positions.dtype, device=positions.device)
+    rotation = torch.where(moving, step / length.clamp(min=MIN_HEADING_STEP_M), unit)
+    origin = torch.where(valid.any(1).unsqueeze(-1), origin, 0.0)
+    return origin, rotation
+
+
+def edge_present(present: Tensor, head: Tensor) -> Tensor:
+    """Edges whose tail and head agents are both present: (..., N) -> (..., N, N-1)."""
+    num_agents = present.shape[-1]
+    heads = present.index_select(-1, head).view(*present.shape, num_agents - 1)
+    return heads & present.unsqueeze(-1)
+
+
+def agent_features(
+    pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFrame, head: Tensor
+) -> tuple[Tensor, Tensor]:
+    """Raw agent-frame features [m, m/step], inputs time-first (S, B, N, 2): own position and
+    velocity of i (S, B, N, 4), and position and velocity of j relative to i (S, B, N, N-1, 4),
+    all in i's frame."""
+    origin, rotation = frame
+    vel = torch.where(present.unsqueeze(-1), pos - prev_pos, 0.0)  # (S, B, N, 2)
+    own = rotate(pos - origin, rotation, inverse=True)  # (S, B, N, 2)
+    own_vel = rotate(vel, rotation, inverse=True)  # (S, B, N, 2)
+    num_agents = pos.shape[2]
+    shape = (*pos.shape[:2], num_agents, num_agents - 1, 2)
+    rel = pos.index_select(2, head).view(shape) - pos.unsqueeze(3)  # (S, B, N, N-1, 2)
+    rel_vel = vel.index_select(2, head).view(shape) - vel.unsqueeze(3)  # (S, B, N, N-1, 2)
+    rot = rotation.unsqueeze(2)  # (B, N, 1, 2)
+    pair = torch.cat([rotate(rel, rot, inverse=True), rotate(rel_vel, rot, inverse=True)], -1)
+    return torch.cat([own, own_vel], -1), pair

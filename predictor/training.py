@@ -63,7 +63,25 @@ class RunError(ValueError):
 
 def loss_weights(config: TrainConfig) -> LossWeights:
     """The loss weights a training config asks for."""
-    return LossWeights(config.beta1, config.beta2, config.tau, config.sequence_loss)
+    return LossWeights(
+        config.beta1,
+        config.beta2,
+        config.tau,
+        config.sequence_loss,
+        config.mean_loss,
+        config.one_step_needs_previous,
+    )
+
+
+def learning_rate(config: TrainConfig, step: int, total_steps: int) -> float:
+    """The lr of optimiser step `step` (0-based) of `total_steps`: constant, or a cosine decay
+    from `lr` to `lr * lr_final_ratio` reached at the last step. A function of the step alone,
+    so a resumed run needs no scheduler state."""
+    if config.lr_schedule == "constant" or total_steps <= 1:
+        return config.lr
+    progress = min(step, total_steps - 1) / (total_steps - 1)
+    final = config.lr * config.lr_final_ratio
+    return final + (config.lr - final) * 0.5 * (1.0 + math.cos(math.pi * progress))
 
 
 def train_step(
@@ -72,20 +90,30 @@ def train_step(
     batch: Batch,
     num_observed: int,
     config: TrainConfig,
+    lr: float | None = None,
 ) -> dict[str, float]:
-    """One optimiser step on a batch; returns the loss terms. Raises on a non-finite loss."""
+    """One optimiser step on a batch (at learning rate `lr`, default config.lr); returns the
+    loss terms. Raises on a non-finite loss."""
+    for group in optimizer.param_groups:
+        group["lr"] = config.lr if lr is None else lr
     model.train()
     weights = loss_weights(config)
     out = model(
-        batch.positions, batch.valid, num_observed, batch.attention, rollout=weights.sequence
+        batch.positions,
+        batch.valid,
+        num_observed,
+        batch.attention,
+        rollout=weights.sequence,
+        sample=config.rollout_feed == "sample",
     )
     loss, terms = compute_loss(out, batch.positions, batch.valid, num_observed, weights)
     if not math.isfinite(terms["loss"]):
         raise FloatingPointError(f"non-finite loss {terms}")
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
-    if config.grad_clip_norm > 0:
-        torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip_norm)
+    if config.grad_clip_norm > 0:  # per group: one loss's large gradients never shrink another's
+        for group in model.parameter_groups():
+            torch.nn.utils.clip_grad_norm_(group, config.grad_clip_norm)
     optimizer.step()
     return terms
 
@@ -300,6 +328,9 @@ def build_state(
     """Seeded model, optimizer and loader of a fresh run."""
     seed_everything(train_cfg.seed)
     model = SmoothAttentionPredictor(model_cfg)
+    if model_cfg.frame == "agent":  # input/output scales from the training split (checkpointed)
+        scenes = train_set.all()
+        model.fit_normalisation(scenes.positions, scenes.valid, train_set.meta.num_observed)
     optimizer = torch.optim.Adam(model.parameters(), lr=train_cfg.lr)
     loader = make_loader(train_set, train_cfg.batch_size, shuffle=True, seed=train_cfg.seed)
     return RunState(model, optimizer, loader)
@@ -329,7 +360,9 @@ def run_epoch(
     for batch in state.loader:
         if step_callback is not None:
             step_callback(first_step + steps)
-        terms = train_step(state.model, state.optimizer, batch, num_observed, config)
+        step = first_step + steps
+        lr = learning_rate(config, step, config.epochs * len(state.loader))
+        terms = train_step(state.model, state.optimizer, batch, num_observed, config, lr)
         for name, value in terms.items():
             sums[name] = sums.get(name, 0.0) + value
         steps += 1
