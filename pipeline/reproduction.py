@@ -44,11 +44,10 @@ import numpy as np
 from pipeline.files import atomic_output
 from pipeline.generation import GenerateConfig, UnsafeExpertError, generate_dataset
 from pipeline.pool import check_stop, run_parallel
-from pipeline.report.records import RunRecord
+from pipeline.report.records import BASELINES, RunRecord
 
 TRAINED_VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct")
-BASELINE = "const_vel"
-ALL_VARIANTS = (*TRAINED_VARIANTS, BASELINE)
+ALL_VARIANTS = (*TRAINED_VARIANTS, *BASELINES)
 FIGURE_VARIANTS = ("ours", "s_attn")  # their first seed keeps predictions of the figure scenes
 DATA_SEED = 0  # one dataset per setting, fixed: seeds vary only the training
 NUM_TEST = 50  # test trajectories per case (paper)
@@ -121,6 +120,7 @@ class Protocol:
     num_test: int = NUM_TEST  # test trajectories per case
     data_seed: int = DATA_SEED
     quick: bool = False  # cap every setting at QUICK_MAX_MAJOR major trajectories
+    preset: str = "paper"  # predictor.config.PRESETS: the model and training configuration
 
     def counts(self, setting: Setting) -> tuple[int, int]:
         """(num_major, num_minor) generated for a setting; a quick protocol caps the major count."""
@@ -194,6 +194,7 @@ class Job:
     run_dir: str
     save_scenes: bool  # keep predictions of the figure scenes (scenes.npz)
     store_dir: str = ""  # where the results store keeps its eval.json (and scenes.npz); "" none
+    preset: str = "paper"  # predictor.config.PRESETS
 
 
 @dataclass(frozen=True)
@@ -229,11 +230,11 @@ def data_spec(protocol: Protocol, setting: Setting) -> DataSpec:
     )
 
 
-def run_configs(variant: str, seed: int, epochs: int) -> tuple:
-    """(ModelConfig, TrainConfig) of a run: the paper's defaults, one torch thread."""
+def run_configs(variant: str, seed: int, epochs: int, preset: str = "paper") -> tuple:
+    """(ModelConfig, TrainConfig) of a run: the preset's configuration, one torch thread."""
     from predictor.config import make_configs
 
-    return make_configs(variant, None, seed=seed, epochs=epochs, threads=1)
+    return make_configs(variant, None, preset=preset, seed=seed, epochs=epochs, threads=1)
 
 
 def data_path(out_dir: Path, spec: DataSpec) -> Path:
@@ -241,14 +242,16 @@ def data_path(out_dir: Path, spec: DataSpec) -> Path:
     return out_dir / "data" / f"{spec.stem}.h5"
 
 
-def run_dir(out_dir: Path, spec: DataSpec, variant: str, seed: int, epochs: int) -> Path:
+def run_dir(
+    out_dir: Path, spec: DataSpec, variant: str, seed: int, epochs: int, preset: str = "paper"
+) -> Path:
     """runs/<stem>/<variant>/seed<k>_ep<E>_<digest of the model and training configs>."""
     from predictor.config import config_to_dict
 
     base = out_dir / "runs" / spec.stem / variant
-    if variant == BASELINE:
+    if variant in BASELINES:
         return base
-    configs = [config_to_dict(c) for c in run_configs(variant, seed, epochs)]
+    configs = [config_to_dict(c) for c in run_configs(variant, seed, epochs, preset)]
     return base / f"seed{seed}_ep{epochs}_{digest(configs)}"
 
 
@@ -261,12 +264,21 @@ def setting_jobs(
     path = str(data_path(out_dir, spec))
     jobs = []
     for variant in protocol.variants:
-        for seed in [0] if variant == BASELINE else range(protocol.seeds):
-            directory = run_dir(out_dir, spec, variant, seed, protocol.epochs)
+        for seed in [0] if variant in BASELINES else range(protocol.seeds):
+            directory = run_dir(out_dir, spec, variant, seed, protocol.epochs, protocol.preset)
             kept = "" if store is None else str(store / directory.relative_to(out_dir / "runs"))
             save_scenes = variant in FIGURE_VARIANTS and seed == 0
             jobs.append(
-                Job(path, variant, seed, protocol.epochs, str(directory), save_scenes, kept)
+                Job(
+                    path,
+                    variant,
+                    seed,
+                    protocol.epochs,
+                    str(directory),
+                    save_scenes,
+                    kept,
+                    protocol.preset,
+                )
             )
     return jobs
 
@@ -304,7 +316,7 @@ def run_job(job: Job) -> JobOutcome:
     check_stop()
     started = time.perf_counter()
     try:
-        status = "trained" if job.variant == BASELINE else train_job(job)
+        status = "trained" if job.variant in BASELINES else train_job(job)
         check_stop()
         evaluate_job(job)
     except FloatingPointError as err:
@@ -318,7 +330,7 @@ def train_job(job: Job) -> str:
 
     directory = Path(job.run_dir)
     resume = (directory / "last.pt").is_file()
-    model_cfg, train_cfg = run_configs(job.variant, job.seed, job.epochs)
+    model_cfg, train_cfg = run_configs(job.variant, job.seed, job.epochs, job.preset)
     train(
         job.data_path,
         model_cfg,
@@ -350,8 +362,8 @@ def evaluate_job(job: Job) -> None:
     started = time.perf_counter()
     directory = Path(job.run_dir)
     directory.mkdir(parents=True, exist_ok=True)
-    if job.variant == BASELINE:
-        evaluation = evaluate_baseline(BASELINE, job.data_path, "test")
+    if job.variant in BASELINES:
+        evaluation = evaluate_baseline(job.variant, job.data_path, "test")
         extra = {"epochs": 0, "train_seconds": 0.0}
     else:
         evaluation = evaluate_run(directory, job.data_path, "test", "best")

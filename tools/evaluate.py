@@ -13,7 +13,11 @@ the regularisation chosen by cross-validation); `ridge_nearest`, `ridge_labelled
 Predicts every scene of the split (default test) from its observed steps, feeding back the mean
 of each predicted Gaussian, and reports ADE/FDE [m] per case and overall for the main agents
 (the headline: the first two agent slots) and for all agents, plus the attention accuracy
-against the oracle labels. Writes JSON (default RUN/eval.json) and, with --save-predictions,
+against the oracle labels. Diagnostics (predictor/diagnostics.py, also in the JSON): the
+main-agent error per predicted step, for a trained run its teacher-forced one-step error next
+to constant velocity's, and how far a main agent's prediction moves when the history of the
+car it attends to (its label) is swapped with another scene's, next to the same swap of a
+distractor. Writes JSON (default RUN/eval.json) and, with --save-predictions,
 the predictions file (.npz, docs/dataset_format.md) for tools/plot.py. A run is evaluated only
 on data of the scenario, dt and horizons it was trained on.
 """
@@ -115,6 +119,35 @@ def format_table(result: dict, case_names: tuple[str, ...]) -> str:
     return "\n".join(rows)
 
 
+def format_diagnostics(diagnostics: dict | None) -> str:
+    """Lines on why a predictor errs: error curve, one-step error, counterfactual shift."""
+    if not diagnostics:
+        return ""
+
+    def metres(value: float | None, unit: float = 1.0, digits: int = 3) -> str:
+        return "n/a" if value is None else f"{value * unit:.{digits}f}"
+
+    curve = diagnostics["error_curve"]["main_agents"]
+    marks = sorted({0, len(curve) // 3, 2 * len(curve) // 3, len(curve) - 1})
+    lines = [
+        "main-agent error [m] at predicted steps "
+        + ", ".join(f"{k + 1}: {metres(curve[k])}" for k in marks)
+    ]
+    if "one_step" in diagnostics:
+        one = diagnostics["one_step"]["main_agents"]
+        lines.append(
+            f"one-step error (teacher forced, main agents): {metres(one['model_m'], 1000, 2)} mm "
+            f"vs constant velocity {metres(one['const_vel_m'], 1000, 2)} mm"
+        )
+    cf = diagnostics["counterfactual"]
+    lines.append(
+        f"counterfactual shift of a main agent's prediction: labelled car's history swapped "
+        f"{metres(cf['labelled_m'])} m, a distractor's {metres(cf['distractor_m'])} m "
+        f"({cf['pairs']} pairs)"
+    )
+    return "\n".join(lines)
+
+
 def _row(group: dict, name: str) -> dict:
     return group["overall"] if name == "overall" else group["cases"][name]
 
@@ -137,6 +170,7 @@ def main(argv: list[str] | None = None) -> None:
     evaluation = evaluate(args)
     result = evaluation.to_dict()
     print(format_table(result, evaluation.meta.case_names))
+    print(format_diagnostics(result.get("diagnostics")))
     if npz_out is not None:
         with writing(npz_out) as temp:
             evaluation.save_predictions(temp)

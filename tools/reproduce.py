@@ -81,6 +81,7 @@ from pipeline.reproduction import (
     pick,
     reproduce,
 )
+from predictor.config import DEFAULT_PRESET, PRESETS
 
 
 def parse_args(argv: list[str] | None = None):
@@ -107,6 +108,13 @@ def parse_args(argv: list[str] | None = None):
         type=int,
         default=None,
         help=f"training epochs (default {PAPER_EPOCHS}, --quick {QUICK_EPOCHS})",
+    )
+    parser.add_argument(
+        "--preset",
+        default=DEFAULT_PRESET,
+        choices=sorted(PRESETS),
+        help="model and training configuration of the trained variants (predictor/config.py "
+        f"PRESETS; default {DEFAULT_PRESET}; paper = the paper's literal version)",
     )
     parser.add_argument(
         "--jobs", type=int, default=2, help="parallel processes, one torch thread each (default 2)"
@@ -178,6 +186,7 @@ def protocol_from_args(args) -> Protocol:
         QUICK_NUM_TEST if args.quick else NUM_TEST,
         DATA_SEED,
         args.quick,
+        args.preset,
     )
 
 

@@ -10,10 +10,24 @@ ends leaves nothing behind. Variants: ours, nonsmooth, s_attn, average, correct.
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from pipeline.cli import ArgumentParser, fail, require_file, run_main
-from predictor.config import VARIANTS, ModelConfig, TrainConfig, make_configs
+from predictor.config import (
+    DEFAULT_PRESET,
+    FRAMES,
+    LR_SCHEDULES,
+    MEAN_LOSSES,
+    MEAN_PRIORS,
+    OFFSET_SCALES,
+    PRESETS,
+    ROLLOUT_FEEDS,
+    VARIANTS,
+    ModelConfig,
+    TrainConfig,
+    make_configs,
+)
 from predictor.evaluation import CheckpointError
 from predictor.format import FormatError
 from predictor.training import RESUME_MAY_CHANGE, RunError, resume_configs, train
@@ -30,6 +44,11 @@ MODEL_FLAGS = (
     "init_std_m",
     "log_std_gain",
     "mean_prior",
+    "frame",
+    "standardise",
+    "edge_velocity",
+    "offset_scale",
+    "detach_covariance",
 )
 TRAIN_FLAGS = (
     "epochs",
@@ -41,7 +60,43 @@ TRAIN_FLAGS = (
     "grad_clip_norm",
     "eval_every",
     "threads",
+    "lr_schedule",
+    "lr_final_ratio",
+    "rollout_feed",
+    "mean_loss",
+    "one_step_needs_previous",
 )
+CHOICES = {  # string fields with a fixed set of values
+    "mean_prior": MEAN_PRIORS,
+    "frame": FRAMES,
+    "offset_scale": OFFSET_SCALES,
+    "lr_schedule": LR_SCHEDULES,
+    "rollout_feed": ROLLOUT_FEEDS,
+    "mean_loss": MEAN_LOSSES,
+}
+
+
+def yes_no(text: str) -> bool:
+    """argparse type of a boolean option: yes/no, true/false, 1/0."""
+    value = text.strip().lower()
+    if value in ("yes", "true", "1"):
+        return True
+    if value in ("no", "false", "0"):
+        return False
+    raise argparse.ArgumentTypeError(f"expected yes or no, got {text!r}")
+
+
+def add_config_flag(parser, owner: str, name: str, value: object, note: str = "") -> None:
+    """--name for the config field `name` with default `value` (of its preset, see --preset)."""
+    kind = yes_no if isinstance(value, bool) else type(value)
+    parser.add_argument(
+        f"--{name.replace('_', '-')}",
+        type=kind,
+        default=None,
+        choices=CHOICES.get(name),
+        metavar="yes|no" if isinstance(value, bool) else None,
+        help=f"{owner}.{name} (paper preset: {value}{note})",
+    )
 
 
 def parse_args(argv: list[str] | None = None):
@@ -60,24 +115,20 @@ def parse_args(argv: list[str] | None = None):
     )
     parser.add_argument("--overwrite", action="store_true", help="start over in a non-empty --out")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--preset",
+        default=None,
+        choices=sorted(PRESETS),
+        help=f"named configuration the options below change (default {DEFAULT_PRESET}): "
+        "paper = the paper's literal model and optimiser; agent = agent-centric standardised "
+        "inputs, displacement-trained means (predictor/config.py: PRESETS)",
+    )
     defaults_t, defaults_m = TrainConfig(), ModelConfig()
     for name in TRAIN_FLAGS:
-        value = getattr(defaults_t, name)
-        parser.add_argument(
-            f"--{name.replace('_', '-')}",
-            type=type(value),
-            default=None,
-            help=f"TrainConfig.{name} (default {value}"
-            + (", 0 for non-smooth variants)" if name == "beta2" else ")"),
-        )
+        note = ", 0 for non-smooth variants" if name == "beta2" else ""
+        add_config_flag(parser, "TrainConfig", name, getattr(defaults_t, name), note)
     for name in MODEL_FLAGS:
-        value = getattr(defaults_m, name)
-        parser.add_argument(
-            f"--{name.replace('_', '-')}",
-            type=type(value),
-            default=None,
-            help=f"ModelConfig.{name} (default {value})",
-        )
+        add_config_flag(parser, "ModelConfig", name, getattr(defaults_m, name))
     return parser.parse_args(argv)
 
 
@@ -93,12 +144,17 @@ def configs_for(args) -> tuple[ModelConfig, TrainConfig]:
             "seed": args.seed if args.seed is not None else 0,
             **given(args, TRAIN_FLAGS),
         }
-        return make_configs(args.variant or "ours", given(args, MODEL_FLAGS), **train_values)
+        preset = args.preset or DEFAULT_PRESET
+        return make_configs(
+            args.variant or "ours", given(args, MODEL_FLAGS), preset=preset, **train_values
+        )
     changes = {
         **given(args, MODEL_FLAGS),
         **given(args, TRAIN_FLAGS),
         **given(args, ("variant", "seed")),
     }
+    if args.preset is not None:
+        fail("--preset applies to a new run; a resumed run keeps its stored configuration")
     return resume_configs(args.out, changes)
 
 

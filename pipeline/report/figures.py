@@ -31,6 +31,7 @@ COLORS = {
     "average": "#9467bd",
     "correct": "#d62728",
     "const_vel": "#7f7f7f",
+    "ridge": "#8c564b",
 }
 
 

@@ -10,6 +10,7 @@ import numpy as np
 
 from pipeline.report.records import (
     ATTENTION,
+    BASELINES,
     CASES,
     HEADLINE,
     LABELS,
@@ -26,7 +27,7 @@ from pipeline.report.statistics import ALPHA, ALPHA_S_ATTN, STATISTICS, size_mar
 if TYPE_CHECKING:
     from pipeline.report.document import Report
 
-FIXED_ATTENTION = ("average", "correct", "const_vel")  # nothing learned to score
+FIXED_ATTENTION = ("average", "correct", *BASELINES)  # nothing learned to score
 NOTES = """Notes on the protocol:
 - One dataset per setting, generated with dataset seed 0; all variants and training seeds see
   the same trajectories, so the spread over seeds is training randomness only (initial weights,
@@ -151,7 +152,7 @@ def settings_table(report: Report) -> str:
         times = [
             r.train_seconds
             for r in report.results.runs
-            if r.setting == setting.name and r.variant != "const_vel" and r.train_seconds
+            if r.setting == setting.name and r.variant not in BASELINES and r.train_seconds
         ]
         median = f"{float(np.median(times)) / 60:.1f}" if times else "n/a"
         rows.append(
@@ -212,9 +213,11 @@ def how_produced(report: Report) -> str:
             f"- Machine: {machine.cores} cores, {machine.cpu_model}; torch "
             f"{machine.torch}, {machine.torch_threads_per_job} torch thread per job, "
             f"{machine.jobs} parallel jobs; Python {machine.python}",
-            f"- Epochs: {protocol.epochs}; "
+            f"- Configuration preset: `{getattr(protocol, 'preset', 'paper')}` "
+            "(predictor/config.py `PRESETS`); "
+            f"epochs: {protocol.epochs}; "
             f"seeds per trained variant: {protocol.seeds} ({seeds}); "
-            f"`const_vel` once per setting (deterministic)",
+            "baselines (`const_vel`, `ridge`) once per setting (deterministic)",
             f"- Runs: {counts.runs} ({counts.trained} trained now, {counts.resumed} "
             f"resumed, {counts.reused} reused from the cache or the results store "
             f"({counts.reused_from_store} from the store), {counts.failed} failed"

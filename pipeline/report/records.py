@@ -22,6 +22,7 @@ METRICS: tuple[Quantity, ...] = ("ade", "fde")
 GROUPS: tuple[Group, ...] = ("main_agents", "all_agents")
 HEADLINE: Group = "main_agents"  # the two interacting cars: the group the claims are about
 ATTENTION: tuple[Quantity, ...] = ("attention_accuracy", "attention_weight")
+BASELINES = ("const_vel", "ridge")  # untrained predictors: evaluated once per setting
 LABELS = {  # how tables and figures name the variants
     "ours": "Ours",
     "s_attn": "S-Attn",
@@ -29,6 +30,7 @@ LABELS = {  # how tables and figures name the variants
     "average": "Ours-Average",
     "correct": "Ours-Correct",
     "const_vel": "Const-Vel",
+    "ridge": "Ridge",
 }
 
 
