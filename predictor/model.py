@@ -440,7 +440,8 @@ class SmoothAttentionPredictor(nn.Module):
         """
         if self.config.frame != "agent":
             raise ValueError("fit_normalisation needs frame='agent'")
-        steps = self._prepare(positions, valid, num_observed, None)
+        no_labels = torch.full(valid.shape, -1, dtype=torch.long)  # labels play no part here
+        steps = self._prepare(positions, valid, num_observed, no_labels)
         present = steps.present
         if self.config.standardise:
             _, head = edge_index(positions.shape[2], positions.device)

@@ -198,3 +198,13 @@ def test_displacement_mean_loss_hand_values_and_first_step_mask():
     weights = LossWeights(beta1=0, beta2=0, needs_previous=False)
     _, terms = compute_loss(_output(mean, rollout), positions, valid, 2, weights)
     assert "de" not in terms
+
+
+def test_fit_normalisation_works_for_every_attention_mode():
+    positions, valid = curved_scene()
+    for mode in ("learned", "uniform", "oracle"):
+        model = SmoothAttentionPredictor(
+            ModelConfig(**SMALL, **AGENT, offset_scale="deviation", attention_mode=mode)
+        )
+        model.fit_normalisation(positions, valid, 4)
+        assert torch.all(model.offset_std > 0)
