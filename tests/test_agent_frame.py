@@ -208,3 +208,28 @@ def test_fit_normalisation_works_for_every_attention_mode():
         )
         model.fit_normalisation(positions, valid, 4)
         assert torch.all(model.offset_std > 0)
+
+
+def test_agent_preset_run_keeps_its_fitted_scales_and_is_deterministic(dataset_file, tmp_path):
+    """The training split's statistics travel in the checkpoint; a second run with the same
+    seed gives the same weights and the same evaluation."""
+    from predictor.data import TrajectoryDataset
+    from predictor.evaluation import evaluate_run, load_model
+    from predictor.training import train
+
+    model_cfg, train_cfg = make_configs("ours", SMALL, preset="agent", epochs=2)
+    runs = [tmp_path / "a", tmp_path / "b"]
+    for run in runs:
+        train(dataset_file, model_cfg, train_cfg, run, progress=False)
+    model, _ = load_model(runs[0] / "best.pt")
+    train_set = TrajectoryDataset(dataset_file, "train")
+    fresh = SmoothAttentionPredictor(model_cfg)
+    scenes = train_set.all()
+    fresh.fit_normalisation(scenes.positions, scenes.valid, train_set.meta.num_observed)
+    for name in ("input_mean", "input_std", "offset_std"):
+        torch.testing.assert_close(getattr(model, name), getattr(fresh, name))
+    assert not torch.equal(model.input_std, torch.ones_like(model.input_std))
+    first, second = (evaluate_run(run, dataset_file).to_dict() for run in runs)
+    first.pop("run"), second.pop("run")
+    assert first == second
+    assert first["diagnostics"]["one_step"]["all_agents"]["model_m"] is not None

@@ -391,6 +391,14 @@ def test_cache_keys_change_with_the_configs(tmp_path):
 
     keys = {key("ours", 0, 5), key("nonsmooth", 0, 5), key("ours", 1, 5), key("ours", 0, 6)}
     assert len(keys) == 4 and key("ours", 0, 5) == key("ours", 0, 5)
+    agent = reproduction.run_dir(tmp_path, spec, "ours", 0, 5, "agent").name.split("_")[-1]
+    assert agent not in keys  # another preset is another run
+    job = reproduction.setting_jobs(
+        dataclasses.replace(protocol, preset="agent"), setting, tmp_path
+    )
+    assert job[0].preset == "agent" and job[0].run_dir.endswith(agent)
+    model_cfg, train_cfg = reproduction.run_configs("ours", 0, 5, "agent")
+    assert model_cfg.frame == "agent" and train_cfg.epochs == 5 and train_cfg.threads == 1
     assert reproduction.digest({"a": 1, "b": 2}) == reproduction.digest({"b": 2, "a": 1})
 
 
