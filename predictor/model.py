@@ -30,6 +30,16 @@ predicts the prior with stds init_std_m. The gain lets Adam (lr 1e-3) move the s
 decades they need (1 mm for a car at constant speed, metres late in a rollout) within a
 paper-length run; without it a std moves ~0.1 % per step.
 
+Agent frame (`frame="agent"`, docs/PREDICTOR.md): each agent's inputs are expressed in its own
+frame (origin at its last observed position, x axis along its last observed displacement), the
+same for every step of the scene: own position and velocity for F_self and F_embed, relative
+position (and velocity, `edge_velocity`) of j for F_interact, standardised with statistics of the
+training split (`fit_normalisation`, kept as buffers in the checkpoint). The mean offset and the
+Cholesky factor are predicted in that frame and rotated to world axes; with
+`offset_scale="deviation"` the offset's unit is the training split's RMS one-step deviation from
+constant velocity. The model is then equivariant to rotating and translating a scene.
+`detach_covariance` gives the covariance a head of its own behind a stop-gradient.
+
 Everything is batched over scenes, agents and edges; the only Python loop is over the time steps
 of the fed-back rollout. Absent agents are masked out of the attention.
 """
