@@ -25,7 +25,8 @@ from predictor.evaluation import read_checkpoint
 reproduce = load_tool("reproduce.py")
 
 SETTINGS = ("dm_r0.3", "dm_r0.8", "dm_3+10", "dm_15+30", "dm_30+100", "hc_stop", "hc_go")
-VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct", "const_vel")
+VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct", "const_vel", "ridge")
+BASELINE_VARIANTS = ("const_vel", "ridge")  # evaluated once, not trained per seed
 NOTES = "The lead's notes.\n\n- verbatim *markdown* line\n"
 REDONE = ("nonsmooth", 1)  # this run's eval.json is deleted before the second run
 
@@ -143,14 +144,14 @@ def test_results_json_has_every_setting_variant_and_seed(quick):
     assert tuple(document["protocol"]["variants"]) == VARIANTS
     assert document["protocol"]["quick"] and document["protocol"]["epochs"] == 1
     runs = document["runs"]
-    assert len(runs) == len(SETTINGS) * (5 * 2 + 1)
+    assert len(runs) == len(SETTINGS) * (5 * 2 + len(BASELINE_VARIANTS))
     for setting in SETTINGS:
         assert set(document["aggregates"][setting]) == set(VARIANTS)
         for variant in VARIANTS:
             seeds = sorted(
                 r["seed"] for r in runs if r["setting"] == setting and r["variant"] == variant
             )
-            assert seeds == ([0] if variant == "const_vel" else [0, 1])
+            assert seeds == ([0] if variant in BASELINE_VARIANTS else [0, 1])
     assert document["machine"]["cores"] >= 1 and document["machine"]["torch"]
 
 
@@ -183,7 +184,7 @@ def test_results_json_aggregates_match_the_runs(quick):
 
 def test_second_run_reuses_the_cache(quick):
     second = quick["second"]
-    assert "0 trained, 1 resumed, 54 reused" in second.stdout
+    assert "0 trained, 1 resumed, 59 reused" in second.stdout
     assert "0 datasets generated, 5 reused" in second.stdout
     after = quick["after"]
     assert set(after) == set(quick["before"])
@@ -367,14 +368,14 @@ def test_jobs_cover_every_variant_and_seed(tmp_path):
     setting = reproduction.SETTING_BY_NAME["hc_go"]
     protocol = reproduction.Protocol((setting,), VARIANTS, 3, 7)
     jobs = reproduction.setting_jobs(protocol, setting, tmp_path)
-    assert len(jobs) == 5 * 3 + 1
+    assert len(jobs) == 5 * 3 + len(BASELINE_VARIANTS)
     assert {(j.variant, j.seed) for j in jobs if j.save_scenes} == {("ours", 0), ("s_attn", 0)}
     data = Path(jobs[0].data_path)
     assert data.parent == tmp_path / "data"
     assert re.fullmatch(r"halting_car_go-major_15\+50_test50_seed0_[0-9a-f]{8}\.h5", data.name)
     assert all(j.data_path == jobs[0].data_path for j in jobs)
     assert re.fullmatch(r"seed0_ep7_[0-9a-f]{8}", Path(jobs[0].run_dir).name)
-    assert Path(jobs[0].run_dir).parent.name == "ours" and jobs[-1].run_dir.endswith("const_vel")
+    assert Path(jobs[0].run_dir).parent.name == "ours" and jobs[-1].run_dir.endswith("ridge")
     names = {Path(j.run_dir).name for j in jobs if j.variant == "s_attn"}
     assert len(names) == 3
 
