@@ -68,7 +68,10 @@ def one_step_errors(
     dists = []
     for start in range(0, batch.batch_size, batch_size):
         part = slice(start, start + batch_size)
-        out = model(positions[part], valid[part], num_observed, batch.attention[part], False)
+        roles = None if batch.roles is None else batch.roles[part]
+        out = model(
+            positions[part], valid[part], num_observed, batch.attention[part], False, roles=roles
+        )
         dists.append((out.one_step.mean - positions[part, 1:]).norm(dim=-1))  # (b, T-1, N)
     model_dist = torch.cat(dists)[:, num_observed - 1 :]  # targets t = T_obs .. T-1
     target = positions[:, num_observed:]

@@ -98,8 +98,9 @@ def predict_model(
     model.eval()
     for start in range(0, batch.batch_size, batch_size):
         part = slice(start, start + batch_size)
+        roles = None if batch.roles is None else batch.roles[part]
         out = model.predict(
-            batch.positions[part], batch.valid[part], num_observed, batch.attention[part]
+            batch.positions[part], batch.valid[part], num_observed, batch.attention[part], roles
         )
         theta = torch.cat([out.attention[:, :-1], out.rollout_attention], 1)  # (b, T-1, N, N-1)
         means.append(out.rollout.mean.numpy().astype(np.float32))
@@ -253,6 +254,12 @@ def evaluate_run(
     model, stored = load_model(path)
     dataset = _load_split(data_path, split)
     check_data_matches(stored, dataset.meta, path, data_path)
+    trained_roles = tuple(stored["data"].get("role_names", ()))
+    if model.config.num_roles > 0 and trained_roles != tuple(dataset.meta.role_names):
+        raise EvaluationError(
+            f"{path} reads agent roles {', '.join(trained_roles)}, but {data_path} names "
+            f"{', '.join(dataset.meta.role_names)}"
+        )
     pred_mean, attention = predict_model(
         model, dataset.all(), dataset.meta.num_observed, batch_size
     )

@@ -202,16 +202,20 @@ class SmoothAttentionPredictor(nn.Module):
 
     def __init__(self, config: ModelConfig) -> None:
         super().__init__()
+        if config.num_roles < 0:
+            raise ValueError("num_roles=-1 (from the data) must be resolved first (resolve_roles)")
         self.config = config
         emb, hid = config.embed_dim, config.edge_hidden
-        self.f_embed = nn.Sequential(nn.Linear(2, emb), nn.ReLU())
-        self.f_self = nn.Sequential(nn.Linear(4, emb), nn.ReLU())
+        roles = max(config.num_roles, 0)  # one-hot role inputs of F_embed and F_self
+        self.f_embed = nn.Sequential(nn.Linear(2 + roles, emb), nn.ReLU())
+        self.f_self = nn.Sequential(nn.Linear(4 + roles, emb), nn.ReLU())
         edge_in = 6 if config.edge_velocity else 4
         self.f_interact = nn.Sequential(nn.Linear(edge_in, emb), nn.ReLU())
         if config.frame == "agent":  # input normalisation; fit_normalisation sets it from data
             self.register_buffer("input_mean", torch.zeros(NUM_FEATURES))
             self.register_buffer("input_std", torch.ones(NUM_FEATURES))
             self.register_buffer("offset_std", torch.ones(2))
+            self.register_buffer("anchor_std", torch.ones(2))
             self._default_normalisation()
         self.g_self = nn.LSTM(emb, hid)
         self.g_interact = nn.LSTM(emb, hid)
@@ -224,8 +228,10 @@ class SmoothAttentionPredictor(nn.Module):
         else:
             self.f_pred = nn.Linear(config.node_hidden, 5)  # offset (2), Cholesky raw (3)
             self.f_cov = None
+        anchored = config.rollout_prior == "anchored"
+        self.f_roll = nn.Linear(config.node_hidden, 2) if anchored else None  # velocity change
         with torch.no_grad():  # start exactly at the mean prior, stds init_std_m, no correlation
-            for layer in (self.f_pred, self.f_cov):
+            for layer in (self.f_pred, self.f_cov, self.f_roll):
                 if layer is not None:
                     layer.weight.zero_()
                     layer.bias.zero_()
@@ -251,16 +257,17 @@ class SmoothAttentionPredictor(nn.Module):
         labels: Tensor | None = None,
         rollout: bool = True,
         sample: bool = True,
+        roles: Tensor | None = None,
     ) -> ModelOutput:
         """Training pass: teacher-forced one-step predictions of t = 1 .. T-1 and, if `rollout`,
         a rollout from step T_obs-1 that feeds back reparameterised samples (`sample`) or the
         predicted means (differentiable either way).
 
         positions (B, T, N, 2) [m], valid (B, T, N) bool, labels (B, T, N) int (-1 none; needed
-        for oracle attention). The rollout reuses the teacher-forced recurrent states after the
-        observed steps.
+        for oracle attention), roles (B, N) int (needed with num_roles). The rollout reuses the
+        teacher-forced recurrent states after the observed steps.
         """
-        steps = self._prepare(positions, valid, num_observed, labels)
+        steps = self._prepare(positions, valid, num_observed, labels, roles)
         observed = self._block(steps, 0, num_observed, None)
         rest = self._block(steps, num_observed, positions.shape[1] - 1, observed.state)
         parts = [observed] if rest is None else [observed, rest]
@@ -273,14 +280,20 @@ class SmoothAttentionPredictor(nn.Module):
 
     @torch.no_grad()
     def predict(
-        self, positions: Tensor, valid: Tensor, num_observed: int, labels: Tensor | None = None
+        self,
+        positions: Tensor,
+        valid: Tensor,
+        num_observed: int,
+        labels: Tensor | None = None,
+        roles: Tensor | None = None,
     ) -> ModelOutput:
         """Test-time prediction: observe t < T_obs, then feed back the predicted means.
 
-        Only positions and validity up to step T_obs-1 are read (plus oracle labels, if any).
-        `one_step`/`attention` cover the observed part (t = 1 .. T_obs, theta^0 .. theta^{T_obs-1}).
+        Only positions and validity up to step T_obs-1 are read (plus oracle labels and roles, if
+        the model uses them). `one_step`/`attention` cover the observed part (t = 1 .. T_obs,
+        theta^0 .. theta^{T_obs-1}).
         """
-        steps = self._prepare(positions, valid, num_observed, labels)
+        steps = self._prepare(positions, valid, num_observed, labels, roles)
         observed = self._block(steps, 0, num_observed, None)
         out = ModelOutput(
             one_step=observed.gaussian.time_first(), attention=observed.attention.transpose(0, 1)
@@ -289,13 +302,25 @@ class SmoothAttentionPredictor(nn.Module):
 
     # ----------------------------------------------------------------------------- internals
     def _prepare(
-        self, positions: Tensor, valid: Tensor, num_observed: int, labels: Tensor | None
+        self,
+        positions: Tensor,
+        valid: Tensor,
+        num_observed: int,
+        labels: Tensor | None,
+        roles: Tensor | None = None,
     ) -> _Steps:
         num_steps = positions.shape[1]
         if not 1 <= num_observed < num_steps:
             raise ValueError(f"num_observed must be in [1, {num_steps - 1}], got {num_observed}")
         if self.config.attention_mode == "oracle" and labels is None:
             raise ValueError("oracle attention needs attention labels")
+        role_inputs = None
+        if self.config.num_roles > 0:
+            if roles is None:
+                raise ValueError("this model reads agent roles; the data has none")
+            if int(roles.max()) >= self.config.num_roles or int(roles.min()) < 0:
+                raise ValueError(f"agent roles must be in [0, {self.config.num_roles - 1}]")
+            role_inputs = F.one_hot(roles.long(), self.config.num_roles).to(positions.dtype)
         pos = positions.transpose(0, 1)  # (T, B, N, 2)
         present = valid.transpose(0, 1)  # (T, B, N)
         prev_pos = torch.cat([pos[:1], pos[:-1]], 0)  # (T, B, N, 2)
@@ -311,6 +336,7 @@ class SmoothAttentionPredictor(nn.Module):
             frame=agent_frames(positions, valid, num_observed)
             if self.config.frame == "agent"
             else None,
+            roles=role_inputs,
         )
 
     def _block(
@@ -348,11 +374,16 @@ class SmoothAttentionPredictor(nn.Module):
         gaussian = Gaussian2D(observed.gaussian.mean[-1], observed.gaussian.tril[-1])  # (B, N, .)
         gaussians, attentions = [gaussian], [observed.attention[-1]]
         state, prev = observed.state, steps.pos[t_obs - 1]  # prev: (B, N, 2)
+        anchor = None  # velocity at the last observed step (rollout_prior "anchored")
+        if self.config.rollout_prior == "anchored":
+            anchor = steps.pos[t_obs - 1] - steps.prev_pos[t_obs - 1]  # (B, N, 2)
         for t in range(t_obs, num_steps - 1):
             current = gaussian.rsample() if sample else gaussian.mean  # (B, N, 2)
             current = torch.where(present.unsqueeze(-1), current, torch.zeros_like(current))
             labels = None if steps.labels is None else steps.labels[t : t + 1]  # (1, B, N)
-            block = self._run(current[None], prev[None], present[None], steps, labels, state)
+            block = self._run(
+                current[None], prev[None], present[None], steps, labels, state, anchor
+            )
             gaussian = Gaussian2D(block.gaussian.mean[0], block.gaussian.tril[0])  # (B, N, .)
             gaussians.append(gaussian)
             attentions.append(block.attention[0])
@@ -374,8 +405,13 @@ class SmoothAttentionPredictor(nn.Module):
         steps: _Steps,
         labels: Tensor | None,
         state: RecurrentState | None,
+        anchor: Tensor | None = None,
     ) -> StepOutputs:
-        """S consecutive steps through the graph; inputs time-first (S, B, N, .)."""
+        """S consecutive steps through the graph; inputs time-first (S, B, N, .).
+
+        `anchor` (B, N, 2) [m/step]: rollout steps with the anchored prior p^t + anchor and the
+        offset from F_roll (rollout_prior "anchored"); None: the one-step prior.
+        """
         num_steps, batch, num_agents, _ = pos.shape
         cfg = self.config
         tail, head = edge_index(num_agents, pos.device)  # (M,), (M,)
@@ -387,7 +423,12 @@ class SmoothAttentionPredictor(nn.Module):
             x_edge = self._edge_inputs(rel, head)  # (S, B, N, N-1, E)
         else:
             rel, step, x_edge = self._agent_inputs(pos, prev_pos, present, steps.frame, head)
-        x_self = self.f_self(torch.cat([rel, step], -1))  # (S, B, N, E)
+        own = rel
+        if steps.roles is not None:  # one-hot roles (B, N, R) at every step
+            role = steps.roles.unsqueeze(0).expand(num_steps, -1, -1, -1)  # (S, B, N, R)
+            own = torch.cat([rel, role], -1)
+            step = torch.cat([step, role], -1)
+        x_self = self.f_self(torch.cat([own[..., :2], step], -1))  # (S, B, N, E)
         state = state or RecurrentState(None, None, None)
         o_edge, h_edge = self.g_interact(x_edge.flatten(1, 3), state.edge)  # (S, B*M, H)
         o_self, h_self = self.g_self(x_self.flatten(1, 2), state.self_loop)  # (S, B*N, H)
@@ -395,22 +436,32 @@ class SmoothAttentionPredictor(nn.Module):
         o_self = o_self.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
         theta = self._attention(o_self, o_edge, present, labels, head)  # (S, B, N, N-1)
         attended = (theta.unsqueeze(-1) * o_edge).sum(-2)  # (S, B, N, H)
-        node_in = torch.cat([self.f_embed(rel), attended, o_self], -1)  # (S, B, N, E+2H)
+        node_in = torch.cat([self.f_embed(own), attended, o_self], -1)  # (S, B, N, E+2H)
         o_node, h_node = self.g_pred(node_in.flatten(1, 2), state.node)  # (S, B*N, Hn)
-        raw = self._raw_outputs(o_node).view(num_steps, batch, num_agents, 5)  # (S, B, N, 5)
-        base = pos + (pos - prev_pos) if cfg.mean_prior == "velocity" else pos  # (S, B, N, 2)
-        if steps.frame is None:
+        raw = self._raw_outputs(o_node, anchor is not None)
+        raw = raw.view(num_steps, batch, num_agents, 5)  # (S, B, N, 5)
+        if anchor is not None:
+            gaussian = self._agent_gaussian(raw, pos + anchor, steps.frame[1], self.anchor_std)
+        elif steps.frame is None:
+            base = pos + (pos - prev_pos) if cfg.mean_prior == "velocity" else pos  # (S, B, N, 2)
             gaussian = self._gaussian(raw, base)
         else:
+            base = pos + (pos - prev_pos) if cfg.mean_prior == "velocity" else pos  # (S, B, N, 2)
             gaussian = self._agent_gaussian(raw, base, steps.frame[1])
         return StepOutputs(gaussian, theta, RecurrentState(h_edge, h_self, h_node))
 
-    def _raw_outputs(self, o_node: Tensor) -> Tensor:
+    def _raw_outputs(self, o_node: Tensor, anchored: bool = False) -> Tensor:
         """F_pred(o_node) (..., 5): mean offset (2) and Cholesky raw values (3); with
-        `detach_covariance` the last three see the features through a stop-gradient."""
+        `detach_covariance` the last three see the features through a stop-gradient; with
+        `anchored` the mean offset comes from F_roll (anchored rollout steps)."""
         if self.f_cov is None:
-            return self.f_pred(o_node)
-        return torch.cat([self.f_pred(o_node), self.f_cov(o_node.detach())], -1)
+            raw = self.f_pred(o_node)
+            cov = raw[..., 2:]
+        else:
+            raw = self.f_pred(o_node)
+            cov = self.f_cov(o_node.detach())
+        offset = self.f_roll(o_node) if anchored else raw[..., :2]
+        return torch.cat([offset, cov], -1)
 
     def _agent_inputs(
         self, pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFrame, head: Tensor
@@ -429,11 +480,15 @@ class SmoothAttentionPredictor(nn.Module):
         x_edge = self.f_interact(torch.cat([own_per_edge, pair[..., :width]], -1))
         return own[..., :2], own[..., 2:], x_edge
 
-    def _agent_gaussian(self, raw: Tensor, base: Tensor, rotation: Tensor) -> Gaussian2D:
+    def _agent_gaussian(
+        self, raw: Tensor, base: Tensor, rotation: Tensor, scale: Tensor | None = None
+    ) -> Gaussian2D:
         """Next-position Gaussian with offset and Cholesky factor in the agent frame, rotated to
-        world axes; the offset unit is `offset_std` ("deviation") or step_scale_m ("step")."""
+        world axes; the offset unit is `scale` if given, else `offset_std` ("deviation") or
+        step_scale_m ("step")."""
         cfg = self.config
-        scale = self.offset_std if cfg.offset_scale == "deviation" else cfg.step_scale_m
+        if scale is None:
+            scale = self.offset_std if cfg.offset_scale == "deviation" else cfg.step_scale_m
         offset = rotate(raw[..., :2] * scale, rotation)  # (..., 2)
         local = self._gaussian(raw, torch.zeros_like(base))
         return Gaussian2D(base + offset, rotate_tril(local.tril, rotation))
@@ -446,12 +501,15 @@ class SmoothAttentionPredictor(nn.Module):
         Features are those the model sees (agent frames as in `agent_frames`), over present
         agent-steps (edges: both agents present). `offset_std` is the RMS per axis of the
         agent-frame one-step deviation from constant velocity, p^{t+1} - 2 p^t + p^{t-1}
-        (zero mean by construction, so a zero output stays constant velocity).
+        (zero mean by construction, so a zero output stays constant velocity). `anchor_std`
+        (rollout_prior "anchored") is the RMS per axis of the agent-frame velocity change since
+        the last observed step, v^t - v^{T_obs-1}, over the predicted steps.
         """
         if self.config.frame != "agent":
             raise ValueError("fit_normalisation needs frame='agent'")
         no_labels = torch.full(valid.shape, -1, dtype=torch.long)  # labels play no part here
-        steps = self._prepare(positions, valid, num_observed, no_labels)
+        no_roles = torch.zeros(valid.shape[0], valid.shape[2], dtype=torch.long)  # nor roles
+        steps = self._prepare(positions, valid, num_observed, no_labels, no_roles)
         present = steps.present
         if self.config.standardise:
             _, head = edge_index(positions.shape[2], positions.device)
@@ -467,6 +525,14 @@ class SmoothAttentionPredictor(nn.Module):
             ok = present[1:] & present[:-1] & before
             local = rotate(dev, steps.frame[1], inverse=True)[ok]  # (K, 2)
             self.offset_std.copy_(local.pow(2).mean(0).sqrt().clamp(min=MIN_STAT_STD))
+        if self.config.rollout_prior == "anchored":
+            t_obs = num_observed
+            velocity = steps.pos - steps.prev_pos  # (T, B, N, 2)
+            change = velocity[t_obs:] - velocity[t_obs - 1]  # (T_pred, B, N, 2)
+            before = present[t_obs - 2] if t_obs >= 2 else torch.zeros_like(present[0])
+            ok = present[t_obs:] & present[t_obs - 1 : -1] & present[t_obs - 1] & before
+            local = rotate(change, steps.frame[1], inverse=True)[ok]  # (K, 2)
+            self.anchor_std.copy_(local.pow(2).mean(0).sqrt().clamp(min=MIN_STAT_STD))
 
     def _default_normalisation(self) -> None:
         """Unfitted scales: the car constants of the paper model (used when not standardise)."""
@@ -476,6 +542,7 @@ class SmoothAttentionPredictor(nn.Module):
         with torch.no_grad():
             self.input_std.copy_(torch.tensor(scales))
             self.offset_std.fill_(cfg.step_scale_m)
+            self.anchor_std.fill_(cfg.step_scale_m)
 
     def _edge_inputs(self, rel: Tensor, head: Tensor) -> Tensor:
         """x_ij = F_interact(concat(s_i, s_j - s_i)), all edges: (S, B, N, 2) -> (S, B, N, N-1, E).
@@ -539,6 +606,7 @@ class _Steps:
     origin: Tensor  # (B, 2) [m]
     num_observed: int
     frame: AgentFrame | None = None  # agent frames (frame="agent") or None (scene frame)
+    roles: Tensor | None = None  # (B, N, R) one-hot agent roles (num_roles > 0) or None
 
 
 AgentFrame = tuple[Tensor, Tensor]  # origins (B, N, 2) [m], rotations (cos, sin) (B, N, 2)

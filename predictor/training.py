@@ -39,6 +39,7 @@ from predictor.config import (
     TrainConfig,
     config_to_dict,
     model_config_from_dict,
+    resolve_roles,
     train_config_from_dict,
 )
 from predictor.data import Batch, TrajectoryDataset, make_loader
@@ -105,6 +106,7 @@ def train_step(
         batch.attention,
         rollout=weights.sequence,
         sample=config.rollout_feed == "sample",
+        roles=batch.roles,
     )
     loss, terms = compute_loss(out, batch.positions, batch.valid, num_observed, weights)
     if not math.isfinite(terms["loss"]):
@@ -479,6 +481,10 @@ def train(
     check_out_dir(out, resume, overwrite)
     torch.set_num_threads(train_cfg.threads)
     train_set, val_set, data = _load_splits(data_path)
+    try:
+        model_cfg = resolve_roles(model_cfg, train_set.meta.role_names)
+    except ValueError as err:
+        raise RunError(f"{data_path}: {err}") from None
     state = build_state(model_cfg, train_cfg, train_set)
     if resume:
         checkpoint = read_checkpoint(out / "last.pt")

@@ -119,6 +119,46 @@ def test_fit_normalisation_offset_scale_is_the_rms_second_difference_in_agent_fr
     np.testing.assert_allclose(model.offset_std.numpy(), expected, rtol=1e-4)
 
 
+def test_fit_normalisation_anchor_scale_is_the_rms_velocity_change_since_the_last_observation():
+    positions, valid = curved_scene(steps=9)
+    model = SmoothAttentionPredictor(ModelConfig(**SMALL, **AGENT, rollout_prior="anchored"))
+    model.fit_normalisation(positions, valid, num_observed=4)
+    p = positions.numpy().astype(np.float64)
+    heading = p[:, 3] - p[:, 2]  # (B, N, 2) the last observed velocity
+    unit = heading / np.linalg.norm(heading, axis=-1, keepdims=True)
+    change = (p[:, 4:] - p[:, 3:-1]) - heading[:, None]  # (B, T_pred, N, 2)
+    along = (change * unit[:, None]).sum(-1)
+    across = (change * np.stack([-unit[..., 1], unit[..., 0]], -1)[:, None]).sum(-1)
+    expected = np.sqrt([np.mean(along**2), np.mean(across**2)])
+    np.testing.assert_allclose(model.anchor_std.numpy(), expected, rtol=1e-4)
+
+
+def test_anchored_rollout_is_constant_velocity_at_init_and_a_bias_drifts_linearly():
+    """rollout_prior="anchored": a constant F_roll output c moves step j of the rollout by
+    j * c (scaled, in the agent frame) off constant velocity: linear, where the one-step prior
+    integrates the same bias twice."""
+    torch.manual_seed(0)
+    model = SmoothAttentionPredictor(ModelConfig(**SMALL, **AGENT, rollout_prior="anchored"))
+    positions, valid = curved_scene(steps=12)
+    model.fit_normalisation(positions, valid, 4)
+    velocity = positions[:, 3] - positions[:, 2]  # (B, N, 2)
+    j = torch.arange(positions.shape[1] - 4, dtype=torch.float32).view(1, -1, 1, 1)
+    constant_velocity = positions[:, 3].unsqueeze(1) + (j + 1) * velocity.unsqueeze(1)
+    out = model.predict(positions, valid, 4).rollout.mean  # (B, T_pred, N, 2)
+    torch.testing.assert_close(out, constant_velocity, atol=1e-4, rtol=1e-5)
+    bias = torch.tensor([0.5, -2.0])
+    with torch.no_grad():
+        model.f_roll.bias.copy_(bias)
+    out = model.predict(positions, valid, 4).rollout.mean
+    unit = velocity / velocity.norm(dim=-1, keepdim=True)  # agent frame axes
+    normal = torch.stack([-unit[..., 1], unit[..., 0]], -1)
+    local = bias * model.anchor_std  # (2,)
+    per_step = local[0] * unit + local[1] * normal  # (B, N, 2) world axes
+    torch.testing.assert_close(
+        out, constant_velocity + j * per_step.unsqueeze(1), atol=1e-4, rtol=1e-5
+    )
+
+
 def test_rotate_tril_gives_the_rotated_covariance():
     gen = torch.Generator().manual_seed(3)
     tril = torch.rand(5, 3, generator=gen) + torch.tensor([0.1, -0.5, 0.1])
@@ -135,7 +175,13 @@ def test_rotate_tril_gives_the_rotated_covariance():
 
 
 def test_agent_only_options_need_the_agent_frame():
-    for option in ({"standardise": True}, {"edge_velocity": True}, {"offset_scale": "deviation"}):
+    options = (
+        {"standardise": True},
+        {"edge_velocity": True},
+        {"offset_scale": "deviation"},
+        {"rollout_prior": "anchored"},
+    )
+    for option in options:
         with pytest.raises(ValueError, match="needs frame='agent'"):
             ModelConfig(**option)
 

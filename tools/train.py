@@ -23,6 +23,7 @@ from predictor.config import (
     OFFSET_SCALES,
     PRESETS,
     ROLLOUT_FEEDS,
+    ROLLOUT_PRIORS,
     VARIANTS,
     ModelConfig,
     TrainConfig,
@@ -49,6 +50,8 @@ MODEL_FLAGS = (
     "edge_velocity",
     "offset_scale",
     "detach_covariance",
+    "rollout_prior",
+    "num_roles",
 )
 TRAIN_FLAGS = (
     "epochs",
@@ -70,6 +73,7 @@ CHOICES = {  # string fields with a fixed set of values
     "mean_prior": MEAN_PRIORS,
     "frame": FRAMES,
     "offset_scale": OFFSET_SCALES,
+    "rollout_prior": ROLLOUT_PRIORS,
     "lr_schedule": LR_SCHEDULES,
     "rollout_feed": ROLLOUT_FEEDS,
     "mean_loss": MEAN_LOSSES,
