@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from predictor.config import PRESETS, ModelConfig, TrainConfig, make_configs
+from predictor.config import PRESETS, ModelConfig, TrainConfig, make_configs, resolve_roles
 from predictor.losses import LossWeights, compute_loss
 from predictor.model import (
     Gaussian2D,
@@ -269,10 +269,10 @@ def test_agent_preset_run_keeps_its_fitted_scales_and_is_deterministic(dataset_f
         train(dataset_file, model_cfg, train_cfg, run, progress=False)
     model, _ = load_model(runs[0] / "best.pt")
     train_set = TrajectoryDataset(dataset_file, "train")
-    fresh = SmoothAttentionPredictor(model_cfg)
+    fresh = SmoothAttentionPredictor(resolve_roles(model_cfg, train_set.meta.role_names))
     scenes = train_set.all()
     fresh.fit_normalisation(scenes.positions, scenes.valid, train_set.meta.num_observed)
-    for name in ("input_mean", "input_std", "offset_std"):
+    for name in ("input_mean", "input_std", "offset_std", "anchor_std"):
         torch.testing.assert_close(getattr(model, name), getattr(fresh, name))
     assert not torch.equal(model.input_std, torch.ones_like(model.input_std))
     first, second = (evaluate_run(run, dataset_file).to_dict() for run in runs)
