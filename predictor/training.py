@@ -324,6 +324,13 @@ def checkpoint_dict(
     return out
 
 
+def make_optimizer(model: torch.nn.Module, config: TrainConfig) -> torch.optim.Optimizer:
+    """Adam (the paper's), or AdamW where config.weight_decay > 0."""
+    if config.weight_decay > 0:
+        return torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    return torch.optim.Adam(model.parameters(), lr=config.lr)
+
+
 def build_state(
     model_cfg: ModelConfig, train_cfg: TrainConfig, train_set: TrajectoryDataset
 ) -> RunState:
@@ -333,7 +340,7 @@ def build_state(
     if model_cfg.frame == "agent":  # input/output scales from the training split (checkpointed)
         scenes = train_set.all()
         model.fit_normalisation(scenes.positions, scenes.valid, train_set.meta.num_observed)
-    optimizer = torch.optim.Adam(model.parameters(), lr=train_cfg.lr)
+    optimizer = make_optimizer(model, train_cfg)
     loader = make_loader(train_set, train_cfg.batch_size, shuffle=True, seed=train_cfg.seed)
     return RunState(model, optimizer, loader)
 

@@ -279,3 +279,22 @@ def test_agent_preset_run_keeps_its_fitted_scales_and_is_deterministic(dataset_f
     first.pop("run"), second.pop("run")
     assert first == second
     assert first["diagnostics"]["one_step"]["all_agents"]["model_m"] is not None
+
+
+def test_weight_decay_uses_decoupled_adamw_and_zero_keeps_adam():
+    """One AdamW step with zero gradients shrinks every weight by exactly lr * weight_decay."""
+    from predictor.training import make_optimizer
+
+    model = SmoothAttentionPredictor(ModelConfig(**SMALL))
+    plain = make_optimizer(model, TrainConfig(lr=0.01))
+    assert type(plain) is torch.optim.Adam
+    optimizer = make_optimizer(model, TrainConfig(lr=0.01, weight_decay=0.5))
+    assert type(optimizer) is torch.optim.AdamW
+    before = [p.detach().clone() for p in model.parameters()]
+    for param in model.parameters():
+        param.grad = torch.zeros_like(param)
+    optimizer.step()
+    for old, new in zip(before, model.parameters(), strict=True):
+        torch.testing.assert_close(new.detach(), old * (1 - 0.01 * 0.5))
+    with pytest.raises(ValueError, match="weight_decay must be >= 0"):
+        TrainConfig(weight_decay=-1.0)

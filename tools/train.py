@@ -68,6 +68,7 @@ TRAIN_FLAGS = (
     "rollout_feed",
     "mean_loss",
     "one_step_needs_previous",
+    "weight_decay",
 )
 CHOICES = {  # string fields with a fixed set of values
     "mean_prior": MEAN_PRIORS,
