@@ -1,17 +1,20 @@
 """Training throughput of the smooth-attention predictor on CPU (synthetic data, default shape).
 
 Usage: python benchmarks/bench_training.py [--threads 1] [--repeats 3] [--variant ours]
+[--presets paper,agent]
 (`--threads 1,2` compares thread counts; only meaningful on an otherwise idle machine: with
 the other core busy, 2 threads oversubscribe and one epoch took 146 s instead of 2.2 s.)
 
 Times whole training epochs (optimiser steps included) and the per-epoch validation pass on
 synthetic scenes of the default Double Merge shape (52 train + 13 val scenes, T = 60 steps,
-15 observed, 22 agents = 462 edges per scene, batch 8), for each torch thread count. Reports,
-per thread count, the median over repeats of:
+15 observed, 22 agents = 462 edges per scene, the preset's batch size: 8 for `paper`, 4 for
+`agent`), for each preset and torch thread count. Reports, per preset and thread count, the
+median over repeats of:
 
 - epoch_s / val_s: one training epoch / one validation pass (fed-back means, no_grad) [s]
   (wall clock; epoch_cpu_s is the process CPU time of the epoch, less sensitive to other load)
-- full_run_s: projected paper-length run, epochs x (epoch_s + val_s) [s] (target: < 600 s)
+- full_run_s: projected run of the preset's length (paper 200, agent 90 epochs),
+  epochs x (epoch_s + val_s) [s] (target: < 600 s)
 - scene_steps_per_s: training throughput, scenes x (T - 1) steps per second of training
 - model_gflops / matmul_gflops / fraction_of_matmul: achieved rate from an analytic count of
   the model's multiply-adds (forward + backward ~ 3 x forward) vs. a dense 1024^2 sgemm measured
@@ -33,11 +36,13 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from predictor.config import ModelConfig, make_configs  # noqa: E402
+from predictor.config import ModelConfig, make_configs, resolve_roles  # noqa: E402
 from predictor.data import Batch  # noqa: E402
 from predictor.evaluation import predict_model  # noqa: E402
 from predictor.model import SmoothAttentionPredictor  # noqa: E402
-from predictor.training import train_step  # noqa: E402
+from predictor.training import make_optimizer, train_step  # noqa: E402
+
+ROLE_NAMES = ("main_green", "main_brown", "distractor")  # the scenarios' roles (agent preset)
 
 
 def synthetic_batch(scenes: int, steps: int, agents: int, seed: int) -> Batch:
@@ -103,14 +108,17 @@ def time_epoch(
     return time.perf_counter() - start, time.process_time() - cpu
 
 
-def bench_threads(threads: int, args) -> dict:
+def bench_threads(preset: str, threads: int, args) -> dict:
     torch.set_num_threads(threads)
-    model_cfg, train_cfg = make_configs(args.variant)
+    model_cfg, train_cfg = make_configs(args.variant, preset=preset)
+    model_cfg = resolve_roles(model_cfg, ROLE_NAMES)
     torch.manual_seed(0)
     model = SmoothAttentionPredictor(model_cfg)
-    optimizer = torch.optim.Adam(model.parameters(), lr=train_cfg.lr)
+    optimizer = make_optimizer(model, train_cfg)
     train = synthetic_batch(args.scenes, args.steps, args.agents, seed=1)
     val = synthetic_batch(args.val_scenes, args.steps, args.agents, seed=2)
+    if model_cfg.frame == "agent":
+        model.fit_normalisation(train.positions, train.valid, args.observed)
     size = train_cfg.batch_size
     batches = [
         Batch(**{k: v[i : i + size] for k, v in vars(train).items()})
@@ -133,7 +141,10 @@ def bench_threads(threads: int, args) -> dict:
     )
     model_gflops = 3 * 2 * macs / epoch_s / 1e9
     return {
+        "preset": preset,
         "threads": threads,
+        "batch_size": size,
+        "epochs": train_cfg.epochs,
         "epoch_s": round(epoch_s, 3),
         "epoch_cpu_s": round(statistics.median(cpus), 3),
         "val_s": round(val_s, 3),
@@ -153,6 +164,9 @@ def main() -> None:
     )
     parser.add_argument("--repeats", type=int, default=3, help="timed epochs per thread count")
     parser.add_argument("--variant", default="ours", help="model variant")
+    parser.add_argument(
+        "--presets", default="paper,agent", help="comma-separated presets (default paper,agent)"
+    )
     parser.add_argument("--scenes", type=int, default=52, help="training scenes")
     parser.add_argument("--val-scenes", type=int, default=13, help="validation scenes")
     parser.add_argument("--steps", type=int, default=60, help="recorded steps T")
@@ -160,17 +174,18 @@ def main() -> None:
     parser.add_argument("--agents", type=int, default=22, help="agents per scene")
     args = parser.parse_args()
     results = []
-    for threads in (int(t) for t in args.threads.split(",")):
-        result = bench_threads(threads, args)
+    runs = [(p, int(t)) for p in args.presets.split(",") for t in args.threads.split(",")]
+    for preset, threads in runs:
+        result = bench_threads(preset, threads, args)
         results.append(result)
         print(
-            f"threads={threads}: epoch {result['epoch_s']} s, val {result['val_s']} s, "
-            f"projected 200-epoch run {result['full_run_s']} s, "
+            f"preset={preset} threads={threads}: epoch {result['epoch_s']} s, "
+            f"val {result['val_s']} s, "
+            f"projected {result['epochs']}-epoch run {result['full_run_s']} s, "
             f"{result['scene_steps_per_s']} scene-steps/s, "
             f"{result['fraction_of_matmul']:.1%} of dense matmul",
             file=sys.stderr,
         )
-    model_cfg, train_cfg = make_configs(args.variant)
     print(
         json.dumps(
             {
@@ -181,9 +196,6 @@ def main() -> None:
                 "steps": args.steps,
                 "observed": args.observed,
                 "agents": args.agents,
-                "batch_size": train_cfg.batch_size,
-                "epochs": train_cfg.epochs,
-                "model": vars(model_cfg),
                 "results": results,
             }
         )
