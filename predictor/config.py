@@ -187,6 +187,11 @@ class TrainConfig:
     # Decoupled weight decay (AdamW) per unit lr; 0: plain Adam (paper). A regulariser for the
     # few training scenes of the synthetic settings (52 on Double Merge ratio 0.3).
     weight_decay: float = 0.0
+    # Time-shift augmentation: each optimiser step observes T_obs + k steps, k drawn uniformly
+    # from [-observed_jitter, observed_jitter] (a function of seed and step, so resumable), and
+    # predicts the rest, so a manoeuvre is seen starting at several phases of the prediction
+    # window. 0: always the data's T_obs (paper). Validation and evaluation use T_obs.
+    observed_jitter: int = 0
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
@@ -209,6 +214,7 @@ class TrainConfig:
             "threads": (self.threads >= 1, ">= 1"),
             "lr_final_ratio": (0 <= self.lr_final_ratio <= 1, "in [0, 1]"),
             "weight_decay": (self.weight_decay >= 0, ">= 0"),
+            "observed_jitter": (self.observed_jitter >= 0, ">= 0"),
         }
         for name, (ok, rule) in checks.items():
             if not ok:

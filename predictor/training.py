@@ -85,6 +85,17 @@ def learning_rate(config: TrainConfig, step: int, total_steps: int) -> float:
     return final + (config.lr - final) * 0.5 * (1.0 + math.cos(math.pi * progress))
 
 
+def observed_steps(config: TrainConfig, step: int, num_observed: int, num_steps: int) -> int:
+    """Observed steps of optimiser step `step`: num_observed, or with `observed_jitter` j a
+    draw from [num_observed - j, num_observed + j] (clipped to [2, num_steps - 2]) that
+    depends only on the seed and the step."""
+    if config.observed_jitter == 0:
+        return num_observed
+    low = max(2, num_observed - config.observed_jitter)
+    high = min(num_steps - 2, num_observed + config.observed_jitter)
+    return random.Random(config.seed * 1_000_003 + step).randint(low, max(low, high))
+
+
 def train_step(
     model: SmoothAttentionPredictor,
     optimizer: torch.optim.Optimizer,
@@ -371,7 +382,8 @@ def run_epoch(
             step_callback(first_step + steps)
         step = first_step + steps
         lr = learning_rate(config, step, config.epochs * len(state.loader))
-        terms = train_step(state.model, state.optimizer, batch, num_observed, config, lr)
+        observed = observed_steps(config, step, num_observed, batch.num_steps)
+        terms = train_step(state.model, state.optimizer, batch, observed, config, lr)
         for name, value in terms.items():
             sums[name] = sums.get(name, 0.0) + value
         steps += 1

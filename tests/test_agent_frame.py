@@ -298,3 +298,30 @@ def test_weight_decay_uses_decoupled_adamw_and_zero_keeps_adam():
         torch.testing.assert_close(new.detach(), old * (1 - 0.01 * 0.5))
     with pytest.raises(ValueError, match="weight_decay must be >= 0"):
         TrainConfig(weight_decay=-1.0)
+
+
+def test_observed_jitter_draws_within_bounds_from_seed_and_step_alone():
+    from predictor.training import observed_steps
+
+    assert observed_steps(TrainConfig(), 5, 15, 60) == 15
+    config = TrainConfig(observed_jitter=3, seed=2)
+    draws = [observed_steps(config, step, 15, 60) for step in range(400)]
+    assert set(draws) == set(range(12, 19))  # every value of [15 - 3, 15 + 3], nothing else
+    assert draws == [observed_steps(config, step, 15, 60) for step in range(400)]
+    other = [observed_steps(TrainConfig(observed_jitter=3, seed=3), s, 15, 60) for s in range(400)]
+    assert other != draws
+    edge = TrainConfig(observed_jitter=10)
+    assert {observed_steps(edge, s, 4, 8) for s in range(200)} == {2, 3, 4, 5, 6}
+
+
+def test_a_run_with_observed_jitter_trains_and_repeats_itself(dataset_file, tmp_path):
+    from predictor.training import train
+
+    model_cfg, train_cfg = make_configs(
+        "ours", SMALL, preset="agent", epochs=2, observed_jitter=2, weight_decay=0.1
+    )
+    losses = [
+        train(dataset_file, model_cfg, train_cfg, tmp_path / name, progress=False).final_loss
+        for name in ("a", "b")
+    ]
+    assert losses[0] == losses[1] and math.isfinite(losses[0])

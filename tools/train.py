@@ -69,6 +69,7 @@ TRAIN_FLAGS = (
     "mean_loss",
     "one_step_needs_previous",
     "weight_decay",
+    "observed_jitter",
 )
 CHOICES = {  # string fields with a fixed set of values
     "mean_prior": MEAN_PRIORS,
