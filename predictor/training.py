@@ -71,6 +71,7 @@ def loss_weights(config: TrainConfig) -> LossWeights:
         config.sequence_loss,
         config.mean_loss,
         config.one_step_needs_previous,
+        config.main_agent_weight,
     )
 
 

@@ -136,3 +136,30 @@ def test_absent_agents_do_not_enter_the_loss():
     out.one_step.mean[0, :, 2] -= 7.0
     _, b = compute_loss(out, positions, valid, 2, LossWeights())
     assert a == b
+
+
+def test_main_agent_weight_makes_weighted_means_over_agent_steps():
+    batch, steps, agents, t_obs = 2, 6, 4, 3
+    out = hand_output(batch, steps, agents, t_obs)
+    positions = torch.randn(batch, steps, agents, 2, dtype=torch.float64)
+    valid = torch.ones(batch, steps, agents, dtype=torch.bool)
+    valid[1, 2:, 3] = False  # a distractor that leaves
+    base = dict(mean_loss="displacement", sequence=True)
+    _, plain = compute_loss(out, positions, valid, t_obs, LossWeights(**base))
+    _, weighted = compute_loss(out, positions, valid, t_obs, LossWeights(**base, main_weight=4.0))
+    # by hand: main agents (slots 0, 1) count 4 times, the others once, in sum and count alike
+    w = torch.tensor([4.0, 4.0, 1.0, 1.0], dtype=torch.float64)
+    keep = (valid[:, 1:] & valid[:, :-1]).double() * w
+    err = (positions[:, 1:] - out.one_step.mean).norm(dim=-1)
+    assert abs(weighted["de"] - float((err * keep).sum() / keep.sum())) < 1e-9
+    roll_keep = (valid[:, t_obs:] & out.rollout_present.unsqueeze(1)).double() * w
+    roll_err = (positions[:, t_obs:] - out.rollout.mean).norm(dim=-1)
+    assert abs(weighted["de_seq"] - float((roll_err * roll_keep).sum() / roll_keep.sum())) < 1e-9
+    nll = -MultivariateNormal(out.one_step.mean, scale_tril=out.one_step.scale_tril()).log_prob(
+        positions[:, 1:]
+    )
+    assert abs(weighted["nll"] - float((nll * keep).sum() / keep.sum())) < 1e-9
+    # weight 1 is the plain mean; attention smoothness is not weighted
+    unweighted = (err * (keep > 0)).sum() / (keep > 0).sum()
+    assert abs(plain["de"] - float(unweighted)) < 1e-9 and plain["de"] != weighted["de"]
+    assert weighted["tv"] == plain["tv"] and weighted["tv_seq"] == plain["tv_seq"]

@@ -70,6 +70,7 @@ TRAIN_FLAGS = (
     "one_step_needs_previous",
     "weight_decay",
     "observed_jitter",
+    "main_agent_weight",
 )
 CHOICES = {  # string fields with a fixed set of values
     "mean_prior": MEAN_PRIORS,
