@@ -372,11 +372,16 @@ class SmoothAttentionPredictor(nn.Module):
         num_steps = steps.pos.shape[0]
         present = steps.present[t_obs - 1]  # (B, N) agents rolled out
         gaussian = Gaussian2D(observed.gaussian.mean[-1], observed.gaussian.tril[-1])  # (B, N, .)
-        gaussians, attentions = [gaussian], [observed.attention[-1]]
         state, prev = observed.state, steps.pos[t_obs - 1]  # prev: (B, N, 2)
         anchor = None  # velocity at the last observed step (rollout_prior "anchored")
         if self.config.rollout_prior == "anchored":
             anchor = steps.pos[t_obs - 1] - steps.prev_pos[t_obs - 1]  # (B, N, 2)
+            # the first predicted step too: F_roll on the node output of step T_obs-1 (the
+            # LSTM's last h), so the rollout loss trains every step of the rollout's means
+            o_last = state.node[0][0].view(*present.shape, -1)  # (B, N, Hn)
+            raw = self._raw_outputs(o_last, anchored=True)  # (B, N, 5)
+            gaussian = self._agent_gaussian(raw, prev + anchor, steps.frame[1], self.anchor_std)
+        gaussians, attentions = [gaussian], [observed.attention[-1]]
         for t in range(t_obs, num_steps - 1):
             current = gaussian.rsample() if sample else gaussian.mean  # (B, N, 2)
             current = torch.where(present.unsqueeze(-1), current, torch.zeros_like(current))

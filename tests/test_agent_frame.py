@@ -134,9 +134,9 @@ def test_fit_normalisation_anchor_scale_is_the_rms_velocity_change_since_the_las
 
 
 def test_anchored_rollout_is_constant_velocity_at_init_and_a_bias_drifts_linearly():
-    """rollout_prior="anchored": a constant F_roll output c moves step j of the rollout by
-    j * c (scaled, in the agent frame) off constant velocity: linear, where the one-step prior
-    integrates the same bias twice."""
+    """rollout_prior="anchored": a constant F_roll output c moves the k-th predicted step by
+    k * c (scaled, in the agent frame) off constant velocity, from the first predicted step on:
+    linear, where the one-step prior integrates the same bias twice."""
     torch.manual_seed(0)
     model = SmoothAttentionPredictor(ModelConfig(**SMALL, **AGENT, rollout_prior="anchored"))
     positions, valid = curved_scene(steps=12)
@@ -155,7 +155,7 @@ def test_anchored_rollout_is_constant_velocity_at_init_and_a_bias_drifts_linearl
     local = bias * model.anchor_std  # (2,)
     per_step = local[0] * unit + local[1] * normal  # (B, N, 2) world axes
     torch.testing.assert_close(
-        out, constant_velocity + j * per_step.unsqueeze(1), atol=1e-4, rtol=1e-5
+        out, constant_velocity + (j + 1) * per_step.unsqueeze(1), atol=1e-4, rtol=1e-5
     )
 
 
