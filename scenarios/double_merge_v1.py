@@ -21,26 +21,28 @@ DESCRIPTION = """Double Merge v1: the two main cars swap lanes, each reacting to
     ## Description
     As v0 (the green car `car_0` in lane 2 and the brown car `car_1` in lane 1 want each
     other's lane; case `major`: green starts behind, `minor`: ahead), with a reactive expert
-    (`scenarios.double_merge_reactive`): the front car starts its lane change at its planned
-    time (0.5 to 2 s) only if the bumper gap to the rear car is at least 2 m plus 0.7 to 1.1 s
-    of the rear car's speed, and until then drives 2 to 3 m/s above the cruise to open it; the
-    rear car keeps its cruise until the front car starts to cut in, then follows it with the
-    Intelligent Driver Model (time headway 1.0 to 1.6 s, desired speed 1.05 to 1.2 x the
-    cruise, reaction delay 0.4 to 0.6 s), and, as in v0, moves next to the centre line and
-    merges once the front car has settled. `car_2` ... `car_21` are distractors. All randomness
-    comes from the reset seed; the ranges are the fields of `scenarios.ReactiveDoubleMergeConfig`
-    (the `config` argument takes one).
+    (`scenarios.double_merge_reactive`): the rear car lets the front car in, holding back from
+    the start to its cruise minus a yield speed of 0.5 to 3 m/s drawn per episode; the front
+    car starts its lane change at its planned time (0.5 to 2 s) only once the bumper gap to the
+    rear car is at least 2 m plus 1 s of the rear car's speed, and until then drives 1 m/s
+    above the cruise; once it cuts in, the rear car follows it with the Intelligent Driver
+    Model (time headway 1.2 s, desired speed the cruise, reaction delay 0.4 s) and, as in v0,
+    moves next to the centre line and merges 0.4 s after the front car has settled. Both lane
+    changes take 3.5 s. `car_2` ... `car_21` are distractors. All randomness comes from the
+    reset seed; the ranges are the fields of `scenarios.ReactiveDoubleMergeConfig` (the
+    `config` argument takes one).
 """
 HISTORY = """## Version History
-    - v1: the front car waits for a safe gap; the rear car follows it (IDM with a delay).
+    - v1: the rear car yields and then follows the front car (IDM with a delay), the front
+      car waits for a safe gap; hidden per-episode durations and delays fixed.
     - v0: first version.
     """
 CHANGES = {
     '-1 for none: the main cars attend to each other, the paper\'s "Correct"\n    oracle), '
     "`interaction` (the rear main car is waiting next to the centre line)": "-1 for none: the\n"
-    "    rear main car attends to the front one throughout, the front one to the rear one until\n"
-    "    it starts its lane change), `interaction` (the front car is waiting for the gap or the\n"
-    "    rear car next to the centre line)",
+    "    rear main car attends to the front one throughout, the front one to the rear one from\n"
+    "    its planned start until it starts its lane change), `interaction` (the front car is\n"
+    "    watching the rear car or the rear car is waiting next to the centre line)",
     "`scenarios.rollout(DoubleMerge(),": "`scenarios.rollout(ReactiveDoubleMerge(),",
     "| DoubleMergeConfig  |": "| ReactiveDoubleMergeConfig |",
 }
