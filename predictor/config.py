@@ -99,6 +99,14 @@ class ModelConfig:
     # 0: no role input; ROLES_FROM_DATA (-1): as many as the training data's role names, set
     # when training starts (the checkpoint stores the number).
     num_roles: int = 0
+    # The agent's own acceleration p^t - 2 p^{t-1} + p^{t-2} (agent frame, in units of the
+    # training split's RMS one-step deviation `offset_std`) as an input of F_self next to its
+    # velocity. Without it the model must difference consecutive velocity inputs, where a
+    # lane change's acceleration is ~0.1 of the lateral velocity's spread (and ~0.002 of the
+    # longitudinal one): measured, the agent preset then predicted the first rollout step no
+    # better than constant velocity (main cars 21-47 mm, ridge with accelerations 2 mm).
+    # Agent frame only.
+    acceleration_input: bool = False
 
     def __post_init__(self) -> None:
         for name in ("embed_dim", "edge_hidden", "node_hidden", "attn_dim", "chunk_steps"):
@@ -139,6 +147,7 @@ class ModelConfig:
             "standardise": self.standardise,
             "edge_velocity": self.edge_velocity,
             "offset_scale": self.offset_scale != "step",
+            "acceleration_input": self.acceleration_input,
         }
         for name, used in agent_only.items():
             if used and self.frame != "agent":

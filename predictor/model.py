@@ -208,7 +208,8 @@ class SmoothAttentionPredictor(nn.Module):
         emb, hid = config.embed_dim, config.edge_hidden
         roles = max(config.num_roles, 0)  # one-hot role inputs of F_embed and F_self
         self.f_embed = nn.Sequential(nn.Linear(2 + roles, emb), nn.ReLU())
-        self.f_self = nn.Sequential(nn.Linear(4 + roles, emb), nn.ReLU())
+        accel = 2 if config.acceleration_input else 0  # own acceleration inputs of F_self
+        self.f_self = nn.Sequential(nn.Linear(4 + accel + roles, emb), nn.ReLU())
         edge_in = 6 if config.edge_velocity else 4
         self.f_interact = nn.Sequential(nn.Linear(edge_in, emb), nn.ReLU())
         if config.frame == "agent":  # input normalisation; fit_normalisation sets it from data
@@ -326,9 +327,18 @@ class SmoothAttentionPredictor(nn.Module):
         prev_pos = torch.cat([pos[:1], pos[:-1]], 0)  # (T, B, N, 2)
         prev_present = torch.cat([present[:1], present[:-1]], 0)  # (T, B, N)
         prev_pos = torch.where(prev_present.unsqueeze(-1), prev_pos, pos)  # (T, B, N, 2)
+        # two steps back where the agent was present then and since; else the position that
+        # makes the acceleration p^t - 2 p^{t-1} + p^{t-2} zero
+        prev2_pos = torch.cat([prev_pos[:1], prev_pos[:-1]], 0)  # (T, B, N, 2)
+        absent = torch.zeros_like(present[:2])
+        before = torch.cat([absent[:1], present[:-1]], 0)  # (T, B, N) present at t-1
+        before2 = torch.cat([absent, present[:-2]], 0)  # (T, B, N) present at t-2
+        known = (before2 & before & present).unsqueeze(-1)
+        prev2_pos = torch.where(known, prev2_pos, 2 * prev_pos - pos)  # (T, B, N, 2)
         return _Steps(
             pos=pos,
             prev_pos=prev_pos,
+            prev2_pos=prev2_pos,
             present=present,
             labels=None if labels is None else labels.transpose(0, 1).long(),  # (T, B, N)
             origin=scene_origin(positions, valid, num_observed - 1),  # (B, 2)
@@ -356,7 +366,13 @@ class SmoothAttentionPredictor(nn.Module):
             sl = slice(first, min(first + self.config.chunk_steps, stop))
             labels = None if steps.labels is None else steps.labels[sl]
             chunk = self._run(
-                steps.pos[sl], steps.prev_pos[sl], steps.present[sl], steps, labels, state
+                steps.pos[sl],
+                steps.prev_pos[sl],
+                steps.present[sl],
+                steps,
+                labels,
+                state,
+                prev2_pos=steps.prev2_pos[sl],
             )
             chunks.append(chunk)
             state = chunk.state
@@ -373,6 +389,7 @@ class SmoothAttentionPredictor(nn.Module):
         present = steps.present[t_obs - 1]  # (B, N) agents rolled out
         gaussian = Gaussian2D(observed.gaussian.mean[-1], observed.gaussian.tril[-1])  # (B, N, .)
         state, prev = observed.state, steps.pos[t_obs - 1]  # prev: (B, N, 2)
+        prev2 = steps.prev_pos[t_obs - 1]  # (B, N, 2) the position before prev
         anchor = None  # velocity at the last observed step (rollout_prior "anchored")
         if self.config.rollout_prior == "anchored":
             anchor = steps.pos[t_obs - 1] - steps.prev_pos[t_obs - 1]  # (B, N, 2)
@@ -387,12 +404,12 @@ class SmoothAttentionPredictor(nn.Module):
             current = torch.where(present.unsqueeze(-1), current, torch.zeros_like(current))
             labels = None if steps.labels is None else steps.labels[t : t + 1]  # (1, B, N)
             block = self._run(
-                current[None], prev[None], present[None], steps, labels, state, anchor
+                current[None], prev[None], present[None], steps, labels, state, anchor, prev2[None]
             )
             gaussian = Gaussian2D(block.gaussian.mean[0], block.gaussian.tril[0])  # (B, N, .)
             gaussians.append(gaussian)
             attentions.append(block.attention[0])
-            state, prev = block.state, current
+            state, prev, prev2 = block.state, current, prev
         return Rollout(
             gaussian=Gaussian2D(
                 torch.stack([g.mean for g in gaussians], 1),  # (B, T_pred, N, 2)
@@ -411,11 +428,13 @@ class SmoothAttentionPredictor(nn.Module):
         labels: Tensor | None,
         state: RecurrentState | None,
         anchor: Tensor | None = None,
+        prev2_pos: Tensor | None = None,
     ) -> StepOutputs:
         """S consecutive steps through the graph; inputs time-first (S, B, N, .).
 
         `anchor` (B, N, 2) [m/step]: rollout steps with the anchored prior p^t + anchor and the
-        offset from F_roll (rollout_prior "anchored"); None: the one-step prior.
+        offset from F_roll (rollout_prior "anchored"); None: the one-step prior. `prev2_pos`:
+        the positions two steps back (read with `acceleration_input`).
         """
         num_steps, batch, num_agents, _ = pos.shape
         cfg = self.config
@@ -428,6 +447,10 @@ class SmoothAttentionPredictor(nn.Module):
             x_edge = self._edge_inputs(rel, head)  # (S, B, N, N-1, E)
         else:
             rel, step, x_edge = self._agent_inputs(pos, prev_pos, present, steps.frame, head)
+            if cfg.acceleration_input:
+                accel = rotate(pos - 2 * prev_pos + prev2_pos, steps.frame[1], inverse=True)
+                accel = torch.where(mask, accel / self.offset_std, 0.0)  # (S, B, N, 2)
+                step = torch.cat([step, accel], -1)
         own = rel
         if steps.roles is not None:  # one-hot roles (B, N, R) at every step
             role = steps.roles.unsqueeze(0).expand(num_steps, -1, -1, -1)  # (S, B, N, R)
@@ -523,7 +546,7 @@ class SmoothAttentionPredictor(nn.Module):
             self.input_mean.copy_(torch.cat([own.mean(0), pair.mean(0)]))
             std = torch.cat([own.std(0), pair.std(0)])
             self.input_std.copy_(std.clamp(min=MIN_STAT_STD))
-        if self.config.offset_scale == "deviation":
+        if self.config.offset_scale == "deviation" or self.config.acceleration_input:
             pos, prev = steps.pos, steps.prev_pos
             dev = pos[1:] - 2 * pos[:-1] + prev[:-1]  # (T-1, B, N, 2)
             before = torch.cat([present[:1] & False, present[:-2]], 0)  # (T-1, B, N) at t-1
@@ -606,6 +629,7 @@ class _Steps:
 
     pos: Tensor  # (T, B, N, 2) [m]
     prev_pos: Tensor  # (T, B, N, 2) [m] previous position (current one if absent before)
+    prev2_pos: Tensor  # (T, B, N, 2) [m] two steps back (see _prepare for absent agents)
     present: Tensor  # (T, B, N) bool
     labels: Tensor | None  # (T, B, N) int64 attention labels, -1 none
     origin: Tensor  # (B, 2) [m]

@@ -325,3 +325,50 @@ def test_a_run_with_observed_jitter_trains_and_repeats_itself(dataset_file, tmp_
         for name in ("a", "b")
     ]
     assert losses[0] == losses[1] and math.isfinite(losses[0])
+
+
+def test_two_steps_back_gives_the_finite_difference_acceleration_and_zero_where_unknown():
+    """_prepare's prev2_pos: p^t - 2 p^{t-1} + p^{t-2} equals a parabola's constant second
+    difference where the agent was present at t-2, t-1 and t, and 0 for its first two steps."""
+    t = torch.arange(8, dtype=torch.float32).view(1, 8, 1, 1)
+    accel = torch.tensor([0.3, -0.1])
+    positions = (2.0 * t * torch.tensor([1.0, 0.5]) + 0.5 * t**2 * accel).expand(1, 8, 2, 2)
+    positions = positions.clone()
+    valid = torch.ones(1, 8, 2, dtype=torch.bool)
+    valid[0, :3, 1] = False  # agent 1 enters at step 3
+    model = SmoothAttentionPredictor(ModelConfig(**SMALL, **AGENT, acceleration_input=True))
+    steps = model._prepare(positions, valid, 4, None)
+    second = steps.pos - 2 * steps.prev_pos + steps.prev2_pos  # (T, B, N, 2)
+    torch.testing.assert_close(second[2:, 0, 0], accel.expand(6, 2))
+    torch.testing.assert_close(second[:2, 0, 0], torch.zeros(2, 2))
+    torch.testing.assert_close(second[5:, 0, 1], accel.expand(3, 2))
+    torch.testing.assert_close(second[:5, 0, 1], torch.zeros(5, 2))
+
+
+def test_rollout_accelerations_continue_the_observed_ones(monkeypatch):
+    """On constant-velocity scenes the anchored, untrained model rolls out the truth, so every
+    acceleration it reads, observed or fed back (from the first rollout step on), must be zero:
+    the rollout tracks the position two steps back like teacher forcing does."""
+    gen = torch.Generator().manual_seed(0)
+    velocity = torch.randn(2, 1, 3, 2, generator=gen)
+    positions = torch.randn(2, 1, 3, 2, generator=gen) * 10 + velocity * torch.arange(9.0).view(
+        1, 9, 1, 1
+    )
+    valid = torch.ones(2, 9, 3, dtype=torch.bool)
+    options = {"rollout_prior": "anchored", "offset_scale": "deviation"}
+    config = ModelConfig(**SMALL, **AGENT, **options, acceleration_input=True)
+    model = SmoothAttentionPredictor(config)
+    model.fit_normalisation(*curved_scene(steps=9), 4)  # nonzero scales
+    seen = []
+    original = model._run
+
+    def spy(pos, prev_pos, present, steps, labels, state, anchor=None, prev2_pos=None):
+        seen.append((pos - 2 * prev_pos + prev2_pos).abs().max())
+        return original(pos, prev_pos, present, steps, labels, state, anchor, prev2_pos)
+
+    monkeypatch.setattr(model, "_run", spy)
+    out = model.predict(positions, valid, 4)
+    assert len(seen) > 4  # observed chunk(s) and rollout steps
+    assert max(float(x) for x in seen) < 1e-4
+    torch.testing.assert_close(out.rollout.mean, positions[:, 4:], atol=1e-4, rtol=1e-5)
+    assert model.f_self[0].in_features == 6  # position, velocity, acceleration

@@ -52,6 +52,7 @@ MODEL_FLAGS = (
     "detach_covariance",
     "rollout_prior",
     "num_roles",
+    "acceleration_input",
 )
 TRAIN_FLAGS = (
     "epochs",
