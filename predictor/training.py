@@ -72,6 +72,7 @@ def loss_weights(config: TrainConfig) -> LossWeights:
         config.mean_loss,
         config.one_step_needs_previous,
         config.main_agent_weight,
+        config.one_step_weight,
     )
 
 

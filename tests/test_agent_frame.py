@@ -372,3 +372,13 @@ def test_rollout_accelerations_continue_the_observed_ones(monkeypatch):
     assert max(float(x) for x in seen) < 1e-4
     torch.testing.assert_close(out.rollout.mean, positions[:, 4:], atol=1e-4, rtol=1e-5)
     assert model.f_self[0].in_features == 6  # position, velocity, acceleration
+
+
+def test_variants_without_a_rollout_loss_roll_out_their_one_step_model():
+    """F_roll is trained by the rollout loss alone: S-Attn under the agent preset uses the
+    one-step prior, and asking for the anchored one explicitly is an error."""
+    model, _ = make_configs("s_attn", preset="agent")
+    assert model.rollout_prior == "previous"
+    assert make_configs("ours", preset="agent")[0].rollout_prior == "anchored"
+    with pytest.raises(ValueError, match="no rollout loss"):
+        make_configs("s_attn", {"rollout_prior": "anchored"}, preset="agent")

@@ -72,6 +72,7 @@ TRAIN_FLAGS = (
     "weight_decay",
     "observed_jitter",
     "main_agent_weight",
+    "one_step_weight",
 )
 CHOICES = {  # string fields with a fixed set of values
     "mean_prior": MEAN_PRIORS,
