@@ -273,7 +273,8 @@ VARIANTS: dict[str, Variant] = {
 # "agent": agent-centric standardised inputs, relative velocity on edges, deviation-scaled
 # agent-frame offsets, an anchored rollout, agent roles as inputs, and a longer cosine schedule
 # with smaller batches (more optimiser steps: 52 training scenes at batch 8 are only 7 steps
-# per epoch). docs/PREDICTOR.md has the measurement behind each switch.
+# per epoch), and the main agents' loss terms weighted 5x. docs/PREDICTOR.md has the
+# measurement behind each switch.
 PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     "paper": ({}, {}),
     "agent": (
@@ -294,6 +295,7 @@ PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
             "rollout_feed": "mean",
             "mean_loss": "displacement",
             "one_step_needs_previous": True,
+            "main_agent_weight": 5.0,
         },
     ),
 }
