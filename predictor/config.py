@@ -107,6 +107,11 @@ class ModelConfig:
     # better than constant velocity (main cars 21-47 mm, ridge with accelerations 2 mm).
     # Agent frame only.
     acceleration_input: bool = False
+    # Factor on the learned attention scores <W^T F_attn(o_ii), o_ij> before the softmax. With
+    # ~21 other cars the attention starts near-uniform, where a score's gradient is scaled by
+    # its weight (~1/21); a gain makes the same parameter step move the scores further (as
+    # log_std_gain does for the stds). 1: the paper's scores.
+    attention_gain: float = 1.0
 
     def __post_init__(self) -> None:
         for name in ("embed_dim", "edge_hidden", "node_hidden", "attn_dim", "chunk_steps"):
@@ -115,6 +120,8 @@ class ModelConfig:
         for name in ("position_scale_m", "interaction_scale_m", "step_scale_m", "min_std_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ModelConfig.{name} must be > 0, got {getattr(self, name)}")
+        if not self.attention_gain > 0:
+            raise ValueError("ModelConfig.attention_gain must be > 0")
         if not self.log_std_gain > 0:
             raise ValueError("ModelConfig.log_std_gain must be > 0")
         if not self.init_std_m > self.min_std_m:

@@ -602,7 +602,7 @@ class SmoothAttentionPredictor(nn.Module):
             # last term is the same for every j of row i and cancels in the softmax, so F_attn
             # need not be applied to the N*(N-1) edge outputs (same theta, far cheaper).
             query = self.f_attn(o_self) @ self.f_attn.weight  # (S, B, N, H)
-            scores = (o_edge * query.unsqueeze(-2)).sum(-1)  # (S, B, N, N-1)
+            scores = (o_edge * query.unsqueeze(-2)).sum(-1) * self.config.attention_gain
             return masked_softmax(scores, mask)
         uniform = masked_softmax(torch.zeros(shape, device=o_edge.device), mask)  # (S,B,N,N-1)
         if mode == "uniform":

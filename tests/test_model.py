@@ -200,3 +200,17 @@ def test_split_edge_layer_equals_the_concatenated_input():
         torch.cat([rel[:, :, tail], (rel[:, :, head] - rel[:, :, tail]) * gain], -1)
     )  # (S, B, M, E)
     torch.testing.assert_close(model._edge_inputs(rel, head).flatten(2, 3), direct)
+
+
+def test_attention_gain_multiplies_the_scores_before_the_softmax():
+    """Same weights, gain g: theta_g = softmax(g * s) where theta_1 = softmax(s), so over the
+    present others log theta_g = g log theta_1 - logsumexp(g log theta_1)."""
+    positions, valid, _ = make_scene()
+    plain = make_model(seed=3)(positions, valid, 4, rollout=False).attention
+    gained = make_model(seed=3, attention_gain=3.0)(positions, valid, 4, rollout=False).attention
+    keep = plain > 0  # (B, T-1, N, N-1): present tail and head
+    assert torch.equal(keep, gained > 0)
+    log_plain = torch.where(keep, plain.log(), torch.tensor(float("-inf")))
+    expected = torch.softmax(3.0 * log_plain, -1).nan_to_num(0.0)
+    torch.testing.assert_close(gained, expected, atol=1e-5, rtol=1e-4)
+    assert not torch.allclose(gained, plain)

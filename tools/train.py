@@ -53,6 +53,7 @@ MODEL_FLAGS = (
     "rollout_prior",
     "num_roles",
     "acceleration_input",
+    "attention_gain",
 )
 TRAIN_FLAGS = (
     "epochs",
