@@ -390,6 +390,9 @@ class SmoothAttentionPredictor(nn.Module):
         gaussian = Gaussian2D(observed.gaussian.mean[-1], observed.gaussian.tril[-1])  # (B, N, .)
         state, prev = observed.state, steps.pos[t_obs - 1]  # prev: (B, N, 2)
         prev2 = steps.prev_pos[t_obs - 1]  # (B, N, 2) the position before prev
+        # an agent absent at T_obs-2 has no acceleration at the first rollout step (as in
+        # _prepare): prev2 is then set so that it reads zero
+        first_known = steps.present[t_obs - 2] if t_obs >= 2 else torch.zeros_like(present)
         anchor = None  # velocity at the last observed step (rollout_prior "anchored")
         if self.config.rollout_prior == "anchored":
             anchor = steps.pos[t_obs - 1] - steps.prev_pos[t_obs - 1]  # (B, N, 2)
@@ -403,6 +406,8 @@ class SmoothAttentionPredictor(nn.Module):
             current = gaussian.rsample() if sample else gaussian.mean  # (B, N, 2)
             current = torch.where(present.unsqueeze(-1), current, torch.zeros_like(current))
             labels = None if steps.labels is None else steps.labels[t : t + 1]  # (1, B, N)
+            if t == t_obs:
+                prev2 = torch.where(first_known.unsqueeze(-1), prev2, 2 * prev - current)
             block = self._run(
                 current[None], prev[None], present[None], steps, labels, state, anchor, prev2[None]
             )
@@ -529,7 +534,8 @@ class SmoothAttentionPredictor(nn.Module):
         Features are those the model sees (agent frames as in `agent_frames`), over present
         agent-steps (edges: both agents present). `offset_std` is the RMS per axis of the
         agent-frame one-step deviation from constant velocity, p^{t+1} - 2 p^t + p^{t-1}
-        (zero mean by construction, so a zero output stays constant velocity). `anchor_std`
+        (zero mean by construction, so a zero output stays constant velocity; also the unit of
+        the acceleration input, `acceleration_input`). `anchor_std`
         (rollout_prior "anchored") is the RMS per axis of the agent-frame velocity change since
         the last observed step, v^t - v^{T_obs-1}, over the predicted steps.
         """

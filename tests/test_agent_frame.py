@@ -382,3 +382,29 @@ def test_variants_without_a_rollout_loss_roll_out_their_one_step_model():
     assert make_configs("ours", preset="agent")[0].rollout_prior == "anchored"
     with pytest.raises(ValueError, match="no rollout loss"):
         make_configs("s_attn", {"rollout_prior": "anchored"}, preset="agent")
+
+
+def test_an_agent_first_seen_at_the_last_observed_step_reads_no_rollout_acceleration(monkeypatch):
+    """Its position two steps back is unknown, so its first rollout step must read a zero
+    acceleration (as teacher forcing does), even when the rollout moves it."""
+    positions, valid = curved_scene(steps=9)
+    valid[:, :3, 2] = False  # agent 2 is first seen at step 3 = T_obs - 1
+    options = {"rollout_prior": "anchored", "offset_scale": "deviation"}
+    model = SmoothAttentionPredictor(
+        ModelConfig(**SMALL, **AGENT, **options, acceleration_input=True)
+    )
+    model.fit_normalisation(*curved_scene(steps=9), 4)
+    with torch.no_grad():
+        model.f_roll.bias.fill_(1.0)  # the rollout moves every agent off its last position
+    seen = []
+    original = model._run
+
+    def spy(pos, prev_pos, present, steps, labels, state, anchor=None, prev2_pos=None):
+        seen.append(pos - 2 * prev_pos + prev2_pos)
+        return original(pos, prev_pos, present, steps, labels, state, anchor, prev2_pos)
+
+    monkeypatch.setattr(model, "_run", spy)
+    model.predict(positions, valid, 4)
+    first_rollout = seen[-(9 - 4 - 1)]  # (1, B, N, 2): the input of the first fed-back step
+    assert float(first_rollout[0, :, 2].abs().max()) < 1e-5
+    assert float(first_rollout[0, :, 0].abs().max()) > 1e-3  # a known agent reads the change
