@@ -13,18 +13,17 @@ Failures: everything that can be checked (run directory, data file, resume compa
 checked before the run directory is touched; a fresh run that fails before its first checkpoint
 (`last.pt`) removes the files and directories it created, so it blocks neither a re-run nor
 `--resume`. A resumed run may change only `RESUME_MAY_CHANGE` (see `resume_configs`). Write
-failures (read-only directory, full disk) are a RunError naming the file.
+failures (read-only directory, full disk) are a RunError naming the file (`predictor.run_files`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
 import random
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -53,13 +52,17 @@ from predictor.evaluation import (
 from predictor.losses import LossWeights, compute_loss
 from predictor.model import SmoothAttentionPredictor
 from predictor.predictions import Predictions
+from predictor.run_files import (
+    RunError,
+    atomic_save,
+    atomic_write_text,
+    check_out_dir,
+    claim_out_dir,
+    remove_failed_start,
+    writing,
+)
 
-RUN_FILES = ("config.json", "metrics.jsonl", "last.pt", "best.pt")
 RESUME_MAY_CHANGE = ("epochs", "threads", "eval_every")  # TrainConfig fields; nothing else may
-
-
-class RunError(ValueError):
-    """A run directory or data file cannot be used as asked; the message is one line."""
 
 
 def loss_weights(config: TrainConfig) -> LossWeights:
@@ -198,90 +201,6 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
     np.random.seed(seed % 2**32)
     random.seed(seed)
-
-
-# --------------------------------------------------------------------------- files
-@contextlib.contextmanager
-def _writing(path: Path, action: str = "write") -> Iterator[None]:
-    """Turn an OSError of the block into a one-line RunError naming `path`."""
-    try:
-        yield
-    except OSError as err:
-        raise RunError(f"cannot {action} {path}: {err.strerror or err}") from None
-
-
-def atomic_save(obj: object, path: Path) -> None:
-    """torch.save to a temporary file beside `path`, then rename (RunError if that fails)."""
-    temp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with _writing(path):
-            torch.save(obj, temp)
-            os.replace(temp, path)
-    finally:
-        with contextlib.suppress(OSError):
-            temp.unlink(missing_ok=True)
-
-
-def atomic_write_text(text: str, path: Path) -> None:
-    """Write text to a temporary file beside `path`, then rename (RunError if that fails)."""
-    temp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with _writing(path):
-            temp.write_text(text)
-            os.replace(temp, path)
-    finally:
-        with contextlib.suppress(OSError):
-            temp.unlink(missing_ok=True)
-
-
-def check_out_dir(out_dir: Path, resume: bool, overwrite: bool) -> None:
-    """Check, without changing anything, that `out_dir` can hold the run as asked: a fresh run
-    needs it absent or empty (or overwrite), a resumed one needs its last.pt."""
-    if resume and overwrite:
-        raise RunError("--resume and --overwrite exclude each other")
-    if out_dir.exists() and not out_dir.is_dir():
-        raise RunError(f"{out_dir} exists and is not a directory")
-    if resume:
-        if not out_dir.exists():
-            raise RunError(f"nothing to resume: {out_dir} does not exist")
-        if not (out_dir / "last.pt").is_file():
-            raise RunError(
-                f"nothing to resume in {out_dir}: it has no last.pt (the run never finished an "
-                "epoch); start the run again without --resume (with --overwrite if the directory "
-                "is not empty)"
-            )
-        return
-    if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
-        raise RunError(
-            f"{out_dir} is not empty; pass --resume to continue the run there "
-            "or --overwrite to start over"
-        )
-
-
-def claim_out_dir(out_dir: Path, overwrite: bool) -> list[Path]:
-    """Create `out_dir` (and missing parents) and, with overwrite, remove an old run's files.
-
-    Returns the directories created, outermost first, for `_remove_failed_start`.
-    """
-    created = [p for p in (out_dir, *out_dir.parents) if not p.exists()][::-1]
-    with _writing(out_dir, "create run directory"):
-        out_dir.mkdir(parents=True, exist_ok=True)
-    if overwrite:
-        for name in RUN_FILES + ("eval.json",):
-            with _writing(out_dir / name, "remove"):
-                (out_dir / name).unlink(missing_ok=True)
-    return created
-
-
-def _remove_failed_start(out_dir: Path, created: list[Path]) -> None:
-    """Remove what a fresh run that never wrote last.pt left: its files, then the directories
-    it created (only if empty)."""
-    for name in RUN_FILES:
-        with contextlib.suppress(OSError):
-            (out_dir / name).unlink(missing_ok=True)
-    for directory in reversed(created):
-        with contextlib.suppress(OSError):
-            directory.rmdir()
 
 
 def describe_data(path: str, dataset: TrajectoryDataset, val_count: int) -> dict:
@@ -474,7 +393,7 @@ def _rewrite_metrics(path: Path, last_epoch: int) -> None:
     """Keep only the metrics lines of epochs <= last_epoch (after an interruption)."""
     if not path.exists():
         return
-    with _writing(path, "read"):
+    with writing(path, "read"):
         lines = [line for line in path.read_text().splitlines() if line.strip()]
     kept = [line for line in lines if json.loads(line)["epoch"] <= last_epoch]
     atomic_write_text("".join(line + "\n" for line in kept), path)
@@ -521,7 +440,7 @@ def train(
         )
     except BaseException:
         if not resume and not (out / "last.pt").exists():
-            _remove_failed_start(out, created)
+            remove_failed_start(out, created)
         raise
     return TrainResult(
         out,
@@ -567,7 +486,7 @@ def _train_epochs(
                 state, epoch, data["num_observed"], train_cfg, val_set, bar, step_callback
             )
             final_loss = record["train"]["loss"]
-            with _writing(out / "metrics.jsonl"), open(out / "metrics.jsonl", "a") as stream:
+            with writing(out / "metrics.jsonl"), open(out / "metrics.jsonl", "a") as stream:
                 stream.write(json.dumps(record) + "\n")
             if record["best"]:
                 atomic_save(

@@ -9,16 +9,10 @@ import numpy as np
 import pytest
 import torch
 
+from predictor.agent_frame import agent_frames, rotate, rotate_tril
 from predictor.config import PRESETS, ModelConfig, TrainConfig, make_configs, resolve_roles
 from predictor.losses import LossWeights, compute_loss
-from predictor.model import (
-    Gaussian2D,
-    ModelOutput,
-    SmoothAttentionPredictor,
-    agent_frames,
-    rotate,
-    rotate_tril,
-)
+from predictor.model import Gaussian2D, ModelOutput, SmoothAttentionPredictor
 from predictor.training import learning_rate
 
 torch.set_num_threads(1)
