@@ -1,11 +1,11 @@
-"""Reproduce the paper's synthetic experiments: the protocol, the cache, the jobs and the pool.
+"""Reproduce the paper's synthetic experiments: the cache, the jobs and the pool.
 
-Protocol (paper, Sec. V): for every setting one dataset is generated with dataset seed 0 (so all
-variants and seeds see the same trajectories); each trained variant (`ours`, `s_attn`,
-`nonsmooth`, `average`, `correct`) is trained with training seeds 0..k-1 and evaluated from its
-best.pt (lowest validation ADE of the main agents) on the test split; `const_vel` is evaluated
-once per setting (deterministic). `reproduce(...)` runs what the cache lacks and writes the
-report (pipeline.report).
+Protocol (paper, Sec. V; its definitions are in pipeline.protocol): for every setting one
+dataset is generated with dataset seed 0 (so all variants and seeds see the same trajectories);
+each trained variant (`ours`, `s_attn`, `nonsmooth`, `average`, `correct`) is trained with
+training seeds 0..k-1 and evaluated from its best.pt (lowest validation ADE of the main agents)
+on the test split; `const_vel` is evaluated once per setting (deterministic). `reproduce(...)`
+runs what the cache lacks and writes the report (pipeline.report).
 
 Cache (`out_dir`): `data/<stem>.h5` per dataset (the stem names every generator input) and
 `runs/<stem>/<variant>/seed<k>_ep<E>_<hash>/` per run (train's files plus `eval.json`, written
@@ -35,7 +35,6 @@ import datetime
 import hashlib
 import json
 import time
-from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -44,112 +43,16 @@ import numpy as np
 from pipeline.files import atomic_output
 from pipeline.generation import GenerateConfig, UnsafeExpertError, generate_dataset
 from pipeline.pool import check_stop, run_parallel
+from pipeline.protocol import (
+    Protocol,
+    ReproductionError,
+    Setting,
+)
 from pipeline.report.records import BASELINES, RunRecord
 
-TRAINED_VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct")
-ALL_VARIANTS = (*TRAINED_VARIANTS, *BASELINES)
 FIGURE_VARIANTS = ("ours", "s_attn")  # their first seed keeps predictions of the figure scenes
-DATA_SEED = 0  # one dataset per setting, fixed: seeds vary only the training
-NUM_TEST = 50  # test trajectories per case (paper)
-PAPER_EPOCHS, PAPER_SEEDS = 200, 10
-QUICK_EPOCHS, QUICK_SEEDS, QUICK_NUM_TEST = 1, 2, 5
-QUICK_MAX_MAJOR = 10  # a quick protocol shrinks every setting to at most 10 major trajectories
-QUICK_MIN_MINOR = 2
 DEFAULT_STORE = "results"  # the results store tools/reproduce.py keeps (tracked: commit it)
 INVOCATION_LOG = "invocations.jsonl"  # in the cache: date, command, wall seconds, jobs run
-
-
-class ReproductionError(ValueError):
-    """A reproduction cannot use its inputs or its cache; the message is one line."""
-
-
-@dataclass(frozen=True)
-class Setting:
-    """One experimental setting: a scenario, its major case and its training-pool sizes."""
-
-    name: str
-    scenario: str  # key of scenarios.SCENARIOS
-    major_case: str
-    num_major: int  # major-case trajectories, training + validation
-    num_minor: int  # minor-case trajectories, training + validation
-    group: str  # "ratio", "size" or "halting": the paper figure it belongs to
-    title: str
-
-
-SETTINGS = (
-    Setting("dm_r0.3", "double_merge", "major", 50, 15, "ratio", "Double Merge, minor ratio 0.3"),
-    Setting("dm_r0.8", "double_merge", "major", 50, 40, "ratio", "Double Merge, minor ratio 0.8"),
-    Setting("dm_3+10", "double_merge", "major", 10, 3, "size", "Double Merge, 3 minor + 10 major"),
-    Setting(
-        "dm_15+30", "double_merge", "major", 30, 15, "size", "Double Merge, 15 minor + 30 major"
-    ),
-    Setting(
-        "dm_30+100", "double_merge", "major", 100, 30, "size", "Double Merge, 30 minor + 100 major"
-    ),
-    Setting(
-        "hc_stop",
-        "halting_car",
-        "stop",
-        50,
-        15,
-        "halting",
-        "Halting Car, stop major, minor ratio 0.3",
-    ),
-    Setting(
-        "hc_go", "halting_car", "go", 50, 15, "halting", "Halting Car, go major, minor ratio 0.3"
-    ),
-)
-SETTING_BY_NAME = {s.name: s for s in SETTINGS}
-GROUPS = {
-    "main": ("dm_r0.3", "hc_stop"),
-    "ratio": tuple(s.name for s in SETTINGS if s.group == "ratio"),
-    "size": tuple(s.name for s in SETTINGS if s.group == "size"),
-    "halting": tuple(s.name for s in SETTINGS if s.group == "halting"),
-    "all": tuple(SETTING_BY_NAME),
-}
-
-
-@dataclass(frozen=True)
-class Protocol:
-    """What a reproduction runs (everything that changes results is here or in the settings)."""
-
-    settings: tuple[Setting, ...]
-    variants: tuple[str, ...]  # subset of ALL_VARIANTS, canonical order
-    seeds: int  # training seeds 0 .. seeds-1
-    epochs: int
-    num_test: int = NUM_TEST  # test trajectories per case
-    data_seed: int = DATA_SEED
-    quick: bool = False  # cap every setting at QUICK_MAX_MAJOR major trajectories
-    preset: str = "paper"  # predictor.config.PRESETS: the model and training configuration
-
-    def counts(self, setting: Setting) -> tuple[int, int]:
-        """(num_major, num_minor) generated for a setting; a quick protocol caps the major count."""
-        if not self.quick or setting.num_major <= QUICK_MAX_MAJOR:
-            return setting.num_major, setting.num_minor
-        scale = QUICK_MAX_MAJOR / setting.num_major
-        return QUICK_MAX_MAJOR, max(QUICK_MIN_MINOR, round(setting.num_minor * scale))
-
-    def to_json(self) -> dict:
-        """The protocol as results.json gives it (settings last)."""
-        fields = {k: v for k, v in asdict(self).items() if k != "settings"}
-        return {**fields, "settings": [asdict(s) for s in self.settings]}
-
-
-def pick(
-    text: str, known: Sequence[str], groups: dict[str, tuple[str, ...]], what: str
-) -> tuple[str, ...]:
-    """Names from a comma list (group names expand), in canonical order; ValueError if unknown."""
-    chosen = set()
-    for name in (part.strip() for part in text.split(",")):
-        if name in groups:
-            chosen.update(groups[name])
-        elif name in known:
-            chosen.add(name)
-        else:
-            raise ReproductionError(
-                f"unknown {what} {name!r}; choose from {', '.join((*known, *groups))}"
-            )
-    return tuple(name for name in known if name in chosen)
 
 
 @dataclass(frozen=True)

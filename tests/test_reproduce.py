@@ -20,6 +20,7 @@ from conftest import REPO_ROOT, load_tool, tool_env
 from scipy import stats
 
 from pipeline import reproduction
+from pipeline.protocol import GROUPS, SETTING_BY_NAME, Protocol, ReproductionError, pick
 from predictor.evaluation import read_checkpoint
 
 reproduce = load_tool("reproduce.py")
@@ -327,16 +328,16 @@ def test_interrupt_stops_at_a_safe_point_and_the_rerun_resumes(tmp_path, how, jo
 
 
 def test_cached_results_are_checked_before_use(tmp_path):
-    setting = reproduction.SETTING_BY_NAME["hc_go"]
-    protocol = reproduction.Protocol((setting,), ("ours",), 1, 3)
+    setting = SETTING_BY_NAME["hc_go"]
+    protocol = Protocol((setting,), ("ours",), 1, 3)
     job = reproduction.setting_jobs(protocol, setting, tmp_path)[0]
     assert reproduction.read_eval(job) is None  # not run yet
     Path(job.run_dir).mkdir(parents=True)
     (Path(job.run_dir) / "eval.json").write_text("{not json")
-    with pytest.raises(reproduction.ReproductionError, match="cannot read cached"):
+    with pytest.raises(ReproductionError, match="cannot read cached"):
         reproduction.read_eval(job)
     (Path(job.run_dir) / "eval.json").write_text(json.dumps({"variant": "s_attn", "seed": 0}))
-    with pytest.raises(reproduction.ReproductionError, match="is not the result of"):
+    with pytest.raises(ReproductionError, match="is not the result of"):
         reproduction.read_eval(job)
     (Path(job.run_dir) / "eval.json").write_text(json.dumps({"variant": "ours", "seed": 0}))
     assert reproduction.read_eval(job) is None  # seed 0 of ours also needs its scenes.npz
@@ -346,17 +347,15 @@ def test_cached_results_are_checked_before_use(tmp_path):
 
 # ---------------------------------------------------------------------------------- planning
 def test_settings_and_groups_expand_in_canonical_order():
-    names = reproduction.pick(
-        "hc_go,main,dm_r0.3", tuple(reproduction.SETTING_BY_NAME), reproduction.GROUPS, "setting"
-    )
+    names = pick("hc_go,main,dm_r0.3", tuple(SETTING_BY_NAME), GROUPS, "setting")
     assert names == ("dm_r0.3", "hc_stop", "hc_go")
-    assert reproduction.GROUPS["size"] == ("dm_3+10", "dm_15+30", "dm_30+100")
+    assert GROUPS["size"] == ("dm_3+10", "dm_15+30", "dm_30+100")
 
 
 def test_quick_caps_the_major_count_and_keeps_small_settings():
-    by_name = reproduction.SETTING_BY_NAME
-    quick = reproduction.Protocol(tuple(by_name.values()), VARIANTS, 2, 1, quick=True)
-    full = reproduction.Protocol(tuple(by_name.values()), VARIANTS, 10, 200)
+    by_name = SETTING_BY_NAME
+    quick = Protocol(tuple(by_name.values()), VARIANTS, 2, 1, quick=True)
+    full = Protocol(tuple(by_name.values()), VARIANTS, 10, 200)
     assert quick.counts(by_name["dm_3+10"]) == (10, 3)
     assert quick.counts(by_name["dm_r0.8"]) == (10, 8)  # 40 * 10/50
     assert quick.counts(by_name["dm_30+100"]) == (10, 3)
@@ -365,8 +364,8 @@ def test_quick_caps_the_major_count_and_keeps_small_settings():
 
 
 def test_jobs_cover_every_variant_and_seed(tmp_path):
-    setting = reproduction.SETTING_BY_NAME["hc_go"]
-    protocol = reproduction.Protocol((setting,), VARIANTS, 3, 7)
+    setting = SETTING_BY_NAME["hc_go"]
+    protocol = Protocol((setting,), VARIANTS, 3, 7)
     jobs = reproduction.setting_jobs(protocol, setting, tmp_path)
     assert len(jobs) == 5 * 3 + len(BASELINE_VARIANTS)
     assert {(j.variant, j.seed) for j in jobs if j.save_scenes} == {("ours", 0), ("s_attn", 0)}
@@ -381,8 +380,8 @@ def test_jobs_cover_every_variant_and_seed(tmp_path):
 
 
 def test_cache_keys_change_with_the_configs(tmp_path):
-    setting = reproduction.SETTING_BY_NAME["dm_r0.3"]
-    protocol = reproduction.Protocol((setting,), ("ours",), 1, 5)
+    setting = SETTING_BY_NAME["dm_r0.3"]
+    protocol = Protocol((setting,), ("ours",), 1, 5)
     spec = reproduction.data_spec(protocol, setting)
     other = dataclasses.replace(spec, scenario_digest=reproduction.digest({"changed": 1}))
     assert spec.stem != other.stem

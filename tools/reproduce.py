@@ -63,10 +63,9 @@ import sys
 from pathlib import Path
 
 from pipeline.cli import ArgumentParser, fail
-from pipeline.reproduction import (
+from pipeline.protocol import (
     ALL_VARIANTS,
     DATA_SEED,
-    DEFAULT_STORE,
     GROUPS,
     NUM_TEST,
     PAPER_EPOCHS,
@@ -79,8 +78,8 @@ from pipeline.reproduction import (
     Protocol,
     ReproductionError,
     pick,
-    reproduce,
 )
+from pipeline.reproduction import DEFAULT_STORE, reproduce
 from predictor.config import DEFAULT_PRESET, PRESETS
 
 

@@ -26,7 +26,8 @@ from predictor.plots import plot_samples
 from predictor.predictions import load_predictions
 
 if TYPE_CHECKING:
-    from pipeline.reproduction import Invocation, Protocol, RunCounts
+    from pipeline.protocol import Protocol
+    from pipeline.reproduction import Invocation, RunCounts
 
 NOTES_FILE = "results_notes.md"  # the lead's discussion, beside the report, quoted verbatim
 FIGURE_SETTINGS = ("dm_r0.3", "hc_stop")  # settings whose scenes are drawn when run
