@@ -12,9 +12,9 @@ trajectory is checked (finite, no collision, no off-road car) before the file is
 atomically.
 
 Interrupts: while episodes are rolled out, SIGINT and SIGTERM are only recorded and handed to the
-caller's own handler between episodes (see `_DeferredSignals`), so Ctrl-C ends a run cleanly with
-KeyboardInterrupt (the default SIGINT handler) and no file; worker processes ignore Ctrl-C and
-are stopped by this process.
+caller's own handler between episodes (`pipeline.episode_runner.DeferredSignals`), so Ctrl-C
+ends a run cleanly with KeyboardInterrupt (the default SIGINT handler) and no file; worker
+processes ignore Ctrl-C and are stopped by this process.
 """
 
 from __future__ import annotations
@@ -24,32 +24,25 @@ import dataclasses
 import errno
 import gc
 import json
-import multiprocessing
-import multiprocessing.pool
 import os
-import signal
 import sys
-import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType
 
 import numpy as np
 from tqdm import tqdm
 
+from pipeline.episode_runner import DeferredSignals, run_slots
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 from scenarios import SCENARIOS, Scenario
-from scenarios.rollout import Episode, rollout
+from scenarios.rollout import Episode
 
 SEED_STRIDE = 1_000_000  # trajectory seeds: SEED_STRIDE * seed + k
 DEFAULT_MINOR_RATIO = 0.3  # the paper uses 0.3 and 0.8
 MAX_MINOR_RATIO = 10.0  # larger ratios are almost certainly a typo
 MAX_ATTEMPTS = 5  # replacement rounds for rejected (unsafe) episodes
 SPLIT_ORDER = ("train", "val", "test")
-_POLL_SECONDS = 0.1  # how often the parent looks for a recorded signal while workers run
-_MAX_CHUNK = 32  # most episodes per pool task (fewer tasks, but a progress bar that moves)
 BACKENDS = ("local", "ray")  # where episodes run: processes here, or Ray tasks
 
 
@@ -216,145 +209,6 @@ def is_safe(episode: Episode) -> bool:
     return bool(finite and not episode.collided and not episode.off_road)
 
 
-# ---- interrupts -------------------------------------------------------------------------------
-class _DeferredSignals:
-    """Context manager: SIGINT and SIGTERM are recorded and delivered only at `check()`.
-
-    Python runs a signal handler wherever the main thread happens to be, including inside a
-    pymunk (cffi) callback: a shape query of the collision check, or the destructor of an
-    episode's pymunk space, which the cyclic garbage collector runs at any moment. cffi prints
-    a KeyboardInterrupt raised there ("From cffi callback ...") and swallows it, and generation
-    goes on (or Chipmunk aborts the process, its space left locked). Here the handler
-    only records the signal, and `check()`, called between episodes, passes it to the handler
-    that was installed before (normally raising KeyboardInterrupt) from ordinary Python code.
-    Only signals with a Python handler are deferred (a default SIGTERM still ends the process at
-    once); outside the main thread nothing is deferred. On leaving, the previous handlers are
-    restored and a signal still pending is delivered.
-    """
-
-    def __init__(self) -> None:
-        self._previous: dict[int, Callable] = {}
-        self._pending: list[tuple[int, FrameType | None]] = []
-
-    def __enter__(self) -> _DeferredSignals:
-        if threading.current_thread() is threading.main_thread():
-            for signum in (signal.SIGINT, signal.SIGTERM):
-                handler = signal.getsignal(signum)
-                if callable(handler):
-                    self._previous[signum] = handler
-                    signal.signal(signum, self._record)
-        return self
-
-    def _record(self, signum: int, frame: FrameType | None) -> None:
-        self._pending.append((signum, frame))
-
-    def check(self) -> None:
-        """Deliver recorded signals to their previous handlers (which may raise)."""
-        while self._pending:
-            signum, frame = self._pending.pop(0)
-            self._previous[signum](signum, frame)
-
-    def __exit__(self, exc_type, exc, traceback) -> None:
-        for signum, handler in self._previous.items():
-            signal.signal(signum, handler)
-        if exc_type is None:
-            self.check()
-        self._pending.clear()
-
-
-# ---- running episodes (in this process or in workers) -----------------------------------------
-_SCENARIO: Scenario | None = None  # the scenario object episodes are rolled out with
-
-
-def _load_scenario(scenario_name: str) -> None:
-    global _SCENARIO
-    _SCENARIO = SCENARIOS[scenario_name]()
-
-
-def _init_worker(scenario_name: str) -> None:
-    """Workers leave Ctrl-C to the parent (which stops the pool) and die quietly on SIGTERM."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    _load_scenario(scenario_name)
-
-
-def _run_slot(slot: Slot) -> Episode:
-    return rollout(_SCENARIO, slot.seed, slot.case)
-
-
-def _run_chunk(slots: list[Slot]) -> list[Episode]:
-    return [_run_slot(slot) for slot in slots]
-
-
-def _next_result(
-    results: multiprocessing.pool.IMapIterator, signals: _DeferredSignals
-) -> list[Episode]:
-    """The pool's next chunk of episodes; signals recorded meanwhile are delivered while waiting."""
-    while True:
-        signals.check()
-        try:
-            return results.next(timeout=_POLL_SECONDS)
-        except multiprocessing.TimeoutError:
-            pass
-
-
-def _ray_chunk(task: tuple[str, list[Slot]]) -> list[Episode]:
-    """A Ray task: roll out a chunk of slots of a scenario."""
-    scenario_name, slots = task
-    if _SCENARIO is None or _SCENARIO.name != scenario_name:
-        _load_scenario(scenario_name)
-    return _run_chunk(slots)
-
-
-def _chunks(slots: list[Slot], workers: int) -> list[list[Slot]]:
-    """Consecutive chunks of at most _MAX_CHUNK slots, about 8 per worker."""
-    size = max(1, min(_MAX_CHUNK, len(slots) // (8 * workers)))
-    return [slots[i : i + size] for i in range(0, len(slots), size)]
-
-
-def _run_slots(
-    slots: list[Slot],
-    scenario_name: str,
-    workers: int,
-    progress: tqdm,
-    signals: _DeferredSignals,
-    backend: str = "local",
-) -> list[Episode]:
-    """Roll out every slot, in order; the result depends neither on `workers` nor `backend`.
-
-    With workers > 1 the slots go to a pool in chunks, terminated on any exception
-    (KeyboardInterrupt included); with backend "ray", the chunks are Ray tasks in the running
-    Ray session (see `generate_episodes`).
-    """
-    episodes = []
-    if backend == "ray":
-        from pipeline.ray_backend import map_in_order
-
-        chunks = map_in_order(
-            _ray_chunk,
-            [(scenario_name, chunk) for chunk in _chunks(slots, workers)],
-            on_result=lambda chunk: progress.update(len(chunk)),
-            check=signals.check,
-        )
-        return [episode for chunk in chunks for episode in chunk]
-    if workers == 1:
-        _load_scenario(scenario_name)
-        for slot in slots:
-            episodes.append(_run_slot(slot))
-            progress.update()
-            signals.check()
-        return episodes
-    chunks = _chunks(slots, workers)
-    context = multiprocessing.get_context("spawn" if sys.platform == "darwin" else "fork")
-    with context.Pool(workers, initializer=_init_worker, initargs=(scenario_name,)) as pool:
-        results = pool.imap(_run_chunk, chunks)  # chunksize 1: an iterator with next(timeout)
-        for _ in chunks:
-            chunk = _next_result(results, signals)
-            episodes.extend(chunk)
-            progress.update(len(chunk))
-    return episodes
-
-
 def generate_episodes(
     config: GenerateConfig,
     *,
@@ -395,10 +249,10 @@ def generate_episodes(
             from pipeline.ray_backend import ray_session
 
             stack.enter_context(ray_session(address, workers))
-        signals = stack.enter_context(_DeferredSignals())
+        signals = stack.enter_context(DeferredSignals())
         stack.enter_context(bar)
         for _ in range(MAX_ATTEMPTS):
-            results = _run_slots(
+            results = run_slots(
                 [slots[i] for i in pending], config.scenario, workers, bar, signals, backend
             )
             retry = []

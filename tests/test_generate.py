@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from conftest import load_tool
 
-from pipeline import generation
+from pipeline import episode_runner, generation
 from pipeline.generation import GenerateConfig, default_output, generate_dataset, plan
 from predictor.format import read_dataset, read_meta
 from scenarios import SCENARIOS
@@ -227,7 +227,7 @@ def test_unsafe_episodes_are_replaced_deterministically(monkeypatch):
             return dataclasses.replace(episode, collided=True)
         return episode
 
-    monkeypatch.setattr(generation, "rollout", flaky_rollout)
+    monkeypatch.setattr(episode_runner, "rollout", flaky_rollout)
     config = GenerateConfig.for_scenario("halting_car", num_major=4, num_minor=2, num_test=1)
     slots, episodes, rejected = generation.generate_episodes(config)
     assert rejected == 2
@@ -242,7 +242,7 @@ def test_always_unsafe_expert_gives_up_with_a_clear_error(monkeypatch):
     def crash(scenario, seed, case):
         return dataclasses.replace(rollout(scenario, seed, case), off_road=True)
 
-    monkeypatch.setattr(generation, "rollout", crash)
+    monkeypatch.setattr(episode_runner, "rollout", crash)
     config = GenerateConfig.for_scenario("halting_car", num_major=1, num_minor=0, num_test=0)
     with pytest.raises(generation.UnsafeExpertError, match="still unsafe after 5 rounds"):
         generation.generate_episodes(config)
@@ -272,7 +272,7 @@ def _rollout_that_signals(monkeypatch, on_call: int) -> list[int]:
             os.kill(os.getpid(), signal.SIGINT)  # handled during the episode below
         return rollout(scenario, seed, case)
 
-    monkeypatch.setattr(generation, "rollout", signalling_rollout)
+    monkeypatch.setattr(episode_runner, "rollout", signalling_rollout)
     return calls
 
 
