@@ -63,6 +63,7 @@ from predictor.agent_frame import (
     rotate_tril,
 )
 from predictor.config import ModelConfig
+from predictor.highway import fit_highway, future_offsets, history_features, velocity_changes
 
 LSTMState = tuple[Tensor, Tensor]
 MAX_LOG_GAIN = 12.0  # cap of log(std excess / initial excess): stds stay finite
@@ -225,6 +226,11 @@ class SmoothAttentionPredictor(nn.Module):
             self.register_buffer("offset_std", torch.ones(2))
             self.register_buffer("anchor_std", torch.ones(2))
             self._default_normalisation()
+        if config.highway_steps:  # fitted with the normalisation (predictor.highway)
+            features = 4 * config.highway_steps - 2  # velocities and their differences
+            shape = (max(config.num_roles, 1), features, config.highway_horizon)
+            self.register_buffer("highway_weight", torch.zeros(*shape, 2))
+            self.register_buffer("highway_bias", torch.zeros(shape[0], shape[2], 2))
         self.g_self = nn.LSTM(emb, hid)
         self.g_interact = nn.LSTM(emb, hid)
         learned = config.attention_mode == "learned"
@@ -354,6 +360,7 @@ class SmoothAttentionPredictor(nn.Module):
             if self.config.frame == "agent"
             else None,
             roles=role_inputs,
+            role_index=None if role_inputs is None else roles.long(),
         )
 
     def _block(
@@ -407,16 +414,30 @@ class SmoothAttentionPredictor(nn.Module):
             # LSTM's last h), so the rollout loss trains every step of the rollout's means
             o_last = state.node[0][0].view(*present.shape, -1)  # (B, N, Hn)
             raw = self._raw_outputs(o_last, anchored=True)  # (B, N, 5)
-            gaussian = self._agent_gaussian(raw, prev + anchor, steps.frame[1], self.anchor_std)
+            changes = self._highway(steps)  # (B, N, horizon, 2) world axes, or None
+            if changes is not None:
+                anchor = anchor.unsqueeze(2) + changes  # (B, N, horizon, 2) per predicted step
+            first = anchor if changes is None else anchor[:, :, 0]
+            gaussian = self._agent_gaussian(raw, prev + first, steps.frame[1], self.anchor_std)
         gaussians, attentions = [gaussian], [observed.attention[-1]]
         for t in range(t_obs, num_steps - 1):
+            step_anchor = anchor
+            if anchor is not None and anchor.dim() == 4:  # highway: this step's velocity change
+                step_anchor = anchor[:, :, min(t + 1 - t_obs, anchor.shape[2] - 1)]
             current = gaussian.rsample() if sample else gaussian.mean  # (B, N, 2)
             current = torch.where(present.unsqueeze(-1), current, torch.zeros_like(current))
             labels = None if steps.labels is None else steps.labels[t : t + 1]  # (1, B, N)
             if t == t_obs:
                 prev2 = torch.where(first_known.unsqueeze(-1), prev2, 2 * prev - current)
             block = self._run(
-                current[None], prev[None], present[None], steps, labels, state, anchor, prev2[None]
+                current[None],
+                prev[None],
+                present[None],
+                steps,
+                labels,
+                state,
+                step_anchor,
+                prev2[None],
             )
             gaussian = Gaussian2D(block.gaussian.mean[0], block.gaussian.tril[0])  # (B, N, .)
             gaussians.append(gaussian)
@@ -430,6 +451,23 @@ class SmoothAttentionPredictor(nn.Module):
             attention=torch.stack(attentions, 1),  # (B, T_pred, N, N-1)
             present=present,
         )
+
+    def _highway(self, steps: _Steps) -> Tensor | None:
+        """The highway's velocity changes over the rollout (B, N, horizon, 2), world axes
+        (None without a highway)."""
+        if not self.config.highway_steps:
+            return None
+        rotation = steps.frame[1]
+        features, usable = history_features(
+            steps.pos, steps.present, steps.num_observed, rotation, self.config.highway_steps
+        )
+        roles = steps.role_index
+        if roles is None:
+            roles = torch.zeros(usable.shape, dtype=torch.long, device=usable.device)
+        change = velocity_changes(
+            features, usable, roles, self.highway_weight, self.highway_bias
+        )  # (B, N, horizon, 2) agent frame
+        return rotate(change.permute(2, 0, 1, 3), rotation).permute(1, 2, 0, 3)
 
     def _run(
         self,
@@ -534,7 +572,9 @@ class SmoothAttentionPredictor(nn.Module):
         return Gaussian2D(base + offset, rotate_tril(local.tril, rotation))
 
     @torch.no_grad()
-    def fit_normalisation(self, positions: Tensor, valid: Tensor, num_observed: int) -> None:
+    def fit_normalisation(
+        self, positions: Tensor, valid: Tensor, num_observed: int, roles: Tensor | None = None
+    ) -> None:
         """Set the input means/stds (if `standardise`) and the offset scale (if
         offset_scale="deviation") from (training) scenes (B, T, N, 2), (B, T, N).
 
@@ -574,6 +614,32 @@ class SmoothAttentionPredictor(nn.Module):
             ok = present[t_obs:] & present[t_obs - 1 : -1] & present[t_obs - 1] & before
             local = rotate(change, steps.frame[1], inverse=True)[ok]  # (K, 2)
             self.anchor_std.copy_(local.pow(2).mean(0).sqrt().clamp(min=MIN_STAT_STD))
+        if self.config.highway_steps:
+            self._fit_highway(steps, roles)
+
+    def _fit_highway(self, steps: _Steps, roles: Tensor | None) -> None:
+        """Fit the highway (predictor.highway) on the agents present over the whole history
+        window and future; roles (B, N) pick the map (one map if the model reads no roles)."""
+        rotation = steps.frame[1]
+        t_obs = steps.num_observed
+        features, usable = history_features(
+            steps.pos, steps.present, t_obs, rotation, self.config.highway_steps
+        )
+        offsets, complete = future_offsets(steps.pos, steps.present, t_obs, rotation)
+        if self.config.num_roles <= 0 or roles is None:
+            if self.config.num_roles > 0:
+                raise ValueError("the model reads agent roles; fit_normalisation needs them")
+            roles = torch.zeros(usable.shape, dtype=torch.long)
+        weight, bias, _ = fit_highway(
+            features,
+            offsets,
+            usable & complete,
+            roles.long(),
+            self.highway_weight.shape[0],
+            self.config.highway_horizon,
+        )
+        self.highway_weight.copy_(weight)
+        self.highway_bias.copy_(bias)
 
     def _default_normalisation(self) -> None:
         """Unfitted scales: the car constants of the paper model (used when not standardise)."""
@@ -649,3 +715,4 @@ class _Steps:
     num_observed: int
     frame: AgentFrame | None = None  # agent frames (frame="agent") or None (scene frame)
     roles: Tensor | None = None  # (B, N, R) one-hot agent roles (num_roles > 0) or None
+    role_index: Tensor | None = None  # (B, N) int64 agent roles (num_roles > 0) or None

@@ -271,7 +271,9 @@ def build_state(
     model = SmoothAttentionPredictor(model_cfg)
     if model_cfg.frame == "agent":  # input/output scales from the training split (checkpointed)
         scenes = train_set.all()
-        model.fit_normalisation(scenes.positions, scenes.valid, train_set.meta.num_observed)
+        model.fit_normalisation(
+            scenes.positions, scenes.valid, train_set.meta.num_observed, scenes.roles
+        )
     optimizer = make_optimizer(model, train_cfg)
     loader = make_loader(train_set, train_cfg.batch_size, shuffle=True, seed=train_cfg.seed)
     return RunState(model, optimizer, loader)

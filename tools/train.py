@@ -54,6 +54,8 @@ MODEL_FLAGS = (
     "num_roles",
     "acceleration_input",
     "attention_gain",
+    "highway_steps",
+    "highway_horizon",
 )
 TRAIN_FLAGS = (
     "epochs",

@@ -1,0 +1,126 @@
+"""The linear autoregressive highway (ModelConfig.highway_steps): its closed-form fit, and the
+untrained model's rollout with it against closed-form kinematics."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from predictor.config import ModelConfig, make_configs
+from predictor.highway import fit_highway, future_offsets, history_features, velocity_changes
+from predictor.model import SmoothAttentionPredictor
+
+torch.set_num_threads(1)
+
+SMALL = {"embed_dim": 8, "edge_hidden": 8, "node_hidden": 12, "attn_dim": 4}
+ANCHORED = {
+    "frame": "agent",
+    "standardise": True,
+    "edge_velocity": True,
+    "offset_scale": "deviation",
+    "rollout_prior": "anchored",
+}
+
+
+def accelerating_scenes(batch: int, steps: int, agents: int, seed: int = 0):
+    """Agents under a constant, random acceleration vector (world axes): p_t = p_0 + v_0 t +
+    a t^2 / 2 [m, per step]. In each agent's frame the future offset from constant velocity
+    after k steps is a_local k (k + 1) / 2 with a_local = v^{T_obs-1} - v^{T_obs-2}: a linear
+    function of the observed velocities."""
+    gen = torch.Generator().manual_seed(seed)
+    start = 50.0 * torch.rand(batch, 1, agents, 2, generator=gen, dtype=torch.float64)
+    angle = 2 * math.pi * torch.rand(batch, 1, agents, 1, generator=gen, dtype=torch.float64)
+    speed = 2.0 + torch.rand(batch, 1, agents, 1, generator=gen, dtype=torch.float64)
+    velocity = speed * torch.cat([angle.cos(), angle.sin()], -1)
+    accel = 0.02 * torch.randn(batch, 1, agents, 2, generator=gen, dtype=torch.float64)
+    t = torch.arange(steps, dtype=torch.float64).view(1, -1, 1, 1)
+    positions = start + velocity * t + accel * t * t / 2
+    valid = torch.ones(batch, steps, agents, dtype=torch.bool)
+    return positions.float(), valid
+
+
+def test_fit_recovers_an_exact_linear_map_as_per_step_velocity_changes():
+    gen = torch.Generator().manual_seed(0)
+    scenes, agents, num_features, num_pred = 60, 3, 6, 5
+    features = torch.randn(scenes, agents, num_features, generator=gen, dtype=torch.float64)
+    true_w = torch.randn(num_features, num_pred, 2, generator=gen, dtype=torch.float64)
+    true_b = torch.randn(num_pred, 2, generator=gen, dtype=torch.float64)
+    offsets = torch.einsum("bnf,fkc->bnkc", features, true_w) + true_b  # (B, N, T_pred, 2)
+    usable = torch.ones(scenes, agents, dtype=torch.bool)
+    roles = torch.zeros(scenes, agents, dtype=torch.long)
+    weight, bias, alphas = fit_highway(features.float(), offsets.float(), usable, roles, 1, 7)
+    assert weight.shape == (1, num_features, 7, 2) and bias.shape == (1, 7, 2)
+    assert alphas[0] == pytest.approx(1e-3)  # noise-free: the smallest alpha of the grid
+    change = velocity_changes(features.float(), usable, roles, weight, bias)  # (B, N, 7, 2)
+    torch.testing.assert_close(
+        change[:, :, :num_pred].cumsum(2), offsets.float(), atol=2e-3, rtol=0
+    )
+    # beyond the data's horizon the last velocity change repeats
+    torch.testing.assert_close(
+        change[:, :, num_pred:], change[:, :, num_pred - 1 :][:, :, :1].expand(-1, -1, 2, -1)
+    )
+
+
+def test_a_role_with_one_training_scene_keeps_constant_velocity():
+    features = torch.randn(4, 2, 4)
+    offsets = torch.randn(4, 2, 3, 2)
+    roles = torch.tensor([[0, 1], [0, 0], [0, 0], [0, 0]])
+    weight, bias, alphas = fit_highway(
+        features, offsets, torch.ones(4, 2, dtype=torch.bool), roles, 2, 3
+    )
+    assert set(alphas) == {0}
+    assert not weight[1].any() and not bias[1].any()
+
+
+def test_history_and_future_features_follow_the_kinematics():
+    positions, valid = accelerating_scenes(batch=2, steps=10, agents=3)
+    pos, present = positions.transpose(0, 1), valid.transpose(0, 1)
+    rotation = torch.tensor([1.0, 0.0]).expand(2, 3, 2)  # world axes
+    features, usable = history_features(pos, present, 6, rotation, 3)
+    assert usable.all()
+    assert features.shape == (2, 3, 3 * 2 + 2 * 2)  # 3 velocities, 2 accelerations
+    torch.testing.assert_close(features[..., 4:6], positions[:, 5] - positions[:, 4])
+    torch.testing.assert_close(features[..., :2], positions[:, 3] - positions[:, 2])
+    accel = positions[:, 5] - 2 * positions[:, 4] + positions[:, 3]  # (B, N, 2)
+    torch.testing.assert_close(features[..., -2:], accel, atol=1e-5, rtol=1e-4)
+    offsets, complete = future_offsets(pos, present, 6, rotation)
+    accel = accel.unsqueeze(2)  # (B, N, 1, 2)
+    k = torch.arange(1, 5, dtype=torch.float32).view(1, 1, -1, 1)
+    torch.testing.assert_close(offsets, accel * k * (k + 1) / 2, atol=1e-4, rtol=1e-3)
+    valid[0, 2, 1] = False  # agent 1 of scene 0 misses a history step
+    _, usable = history_features(pos, valid.transpose(0, 1), 6, rotation, 3)
+    assert usable.tolist() == [[True, False, True], [True, True, True]]
+    with pytest.raises(ValueError, match="highway_steps"):
+        history_features(pos, present, 6, rotation, 6)
+
+
+def test_untrained_model_with_a_fitted_highway_rolls_out_the_true_accelerating_motion():
+    num_observed, steps = 8, 20
+    train, valid = accelerating_scenes(batch=40, steps=steps, agents=3, seed=1)
+    test, test_valid = accelerating_scenes(batch=5, steps=steps, agents=3, seed=2)
+    config = ModelConfig(**SMALL, **ANCHORED, highway_steps=4, highway_horizon=12)
+    model = SmoothAttentionPredictor(config)
+    truth = test[:, num_observed:]  # (B, T_pred, N, 2)
+    before = model.predict(test, test_valid, num_observed).rollout.mean  # unfitted: zero map
+    model.fit_normalisation(train, valid, num_observed)
+    after = model.predict(test, test_valid, num_observed).rollout.mean
+    # unfitted (and before any training) the rollout is constant velocity from T_obs-1
+    velocity = (test[:, num_observed - 1] - test[:, num_observed - 2]).unsqueeze(1)
+    k = torch.arange(1, steps - num_observed + 1, dtype=torch.float32).view(1, -1, 1, 1)
+    torch.testing.assert_close(before, test[:, num_observed - 1 : num_observed] + k * velocity)
+    error = (after - truth).norm(dim=-1)
+    assert error.max() < 0.01 * (before - truth).norm(dim=-1).max()
+    assert error[:, :12].max() < 1e-2  # within the fitted horizon: the kinematics [m]
+    # the highway travels with the checkpoint
+    clone = SmoothAttentionPredictor(config)
+    clone.load_state_dict(model.state_dict())
+    torch.testing.assert_close(clone.predict(test, test_valid, num_observed).rollout.mean, after)
+
+
+def test_highway_needs_the_anchored_rollout_and_s_attn_drops_it():
+    with pytest.raises(ValueError, match="anchored"):
+        ModelConfig(frame="agent", highway_steps=4)
+    model, _ = make_configs("s_attn", {"highway_steps": 12}, preset="agent")
+    assert model.highway_steps == 0 and model.rollout_prior == "previous"
