@@ -29,6 +29,7 @@ class Batch:
     case: torch.Tensor  # (B,) int64: index into meta.case_names
     seed: torch.Tensor  # (B,) int64: generating seed, -1 for foreign data
     roles: torch.Tensor | None = None  # (B, N) int64: index into meta.role_names
+    index: torch.Tensor | None = None  # (B,) int64: each scene's position in its split
 
     @property
     def positions(self) -> torch.Tensor:
@@ -86,6 +87,7 @@ def batch_from_set(data: TrajectorySet) -> Batch:
         case=torch.from_numpy(data.case.astype(np.int64)),  # (B,)
         seed=torch.from_numpy(data.seed.astype(np.int64)),  # (B,)
         roles=torch.from_numpy(data.roles.astype(np.int64)),  # (B, N)
+        index=torch.arange(len(data.valid)),  # (B,)
     )
 
 

@@ -63,7 +63,14 @@ from predictor.agent_frame import (
     rotate_tril,
 )
 from predictor.config import ModelConfig
-from predictor.highway import fit_highway, future_offsets, history_features, velocity_changes
+from predictor.highway import (
+    CROSS_FIT_FOLDS,
+    fit_highway,
+    fold_of,
+    future_offsets,
+    history_features,
+    velocity_changes,
+)
 
 LSTMState = tuple[Tensor, Tensor]
 MAX_LOG_GAIN = 12.0  # cap of log(std excess / initial excess): stds stay finite
@@ -227,10 +234,13 @@ class SmoothAttentionPredictor(nn.Module):
             self.register_buffer("anchor_std", torch.ones(2))
             self._default_normalisation()
         if config.highway_steps:  # fitted with the normalisation (predictor.highway)
-            features = 4 * config.highway_steps - 2  # velocities and their differences
+            features = 4 * config.highway_steps - 3  # velocities and their differences
             shape = (max(config.num_roles, 1), features, config.highway_horizon)
             self.register_buffer("highway_weight", torch.zeros(*shape, 2))
             self.register_buffer("highway_bias", torch.zeros(shape[0], shape[2], 2))
+            folds = CROSS_FIT_FOLDS  # the maps that training scenes use (cross-fitting)
+            self.register_buffer("highway_fold_weight", torch.zeros(folds, *shape, 2))
+            self.register_buffer("highway_fold_bias", torch.zeros(folds, shape[0], shape[2], 2))
         self.g_self = nn.LSTM(emb, hid)
         self.g_interact = nn.LSTM(emb, hid)
         learned = config.attention_mode == "learned"
@@ -272,16 +282,20 @@ class SmoothAttentionPredictor(nn.Module):
         rollout: bool = True,
         sample: bool = True,
         roles: Tensor | None = None,
+        scenes: Tensor | None = None,
     ) -> ModelOutput:
         """Training pass: teacher-forced one-step predictions of t = 1 .. T-1 and, if `rollout`,
         a rollout from step T_obs-1 that feeds back reparameterised samples (`sample`) or the
         predicted means (differentiable either way).
 
         positions (B, T, N, 2) [m], valid (B, T, N) bool, labels (B, T, N) int (-1 none; needed
-        for oracle attention), roles (B, N) int (needed with num_roles). The rollout reuses the
-        teacher-forced recurrent states after the observed steps.
+        for oracle attention), roles (B, N) int (needed with num_roles), scenes (B,) int: the
+        scenes' indices in the training split that `fit_normalisation` saw (with a highway, each
+        scene's rollout then uses the map fitted without it; None: the map of all scenes). The
+        rollout reuses the teacher-forced recurrent states after the observed steps.
         """
         steps = self._prepare(positions, valid, num_observed, labels, roles)
+        steps.scenes = scenes
         observed = self._block(steps, 0, num_observed, None)
         rest = self._block(steps, num_observed, positions.shape[1] - 1, observed.state)
         parts = [observed] if rest is None else [observed, rest]
@@ -464,9 +478,13 @@ class SmoothAttentionPredictor(nn.Module):
         roles = steps.role_index
         if roles is None:
             roles = torch.zeros(usable.shape, dtype=torch.long, device=usable.device)
-        change = velocity_changes(
-            features, usable, roles, self.highway_weight, self.highway_bias
-        )  # (B, N, horizon, 2) agent frame
+        if steps.scenes is None:  # the map of all training scenes
+            weight, bias = self.highway_weight[roles], self.highway_bias[roles]
+        else:  # each training scene: the map fitted without its fold
+            fold = fold_of(steps.scenes, CROSS_FIT_FOLDS).unsqueeze(-1).expand_as(roles)
+            weight = self.highway_fold_weight[fold, roles]  # (B, N, F, horizon, 2)
+            bias = self.highway_fold_bias[fold, roles]  # (B, N, horizon, 2)
+        change = velocity_changes(features, usable, weight, bias)  # (B, N, horizon, 2)
         return rotate(change.permute(2, 0, 1, 3), rotation).permute(1, 2, 0, 3)
 
     def _run(
@@ -619,7 +637,9 @@ class SmoothAttentionPredictor(nn.Module):
 
     def _fit_highway(self, steps: _Steps, roles: Tensor | None) -> None:
         """Fit the highway (predictor.highway) on the agents present over the whole history
-        window and future; roles (B, N) pick the map (one map if the model reads no roles)."""
+        window and future: the map of all scenes, and one map without each cross-fitting fold
+        (scene b belongs to fold b mod CROSS_FIT_FOLDS); roles (B, N) pick the map (one map if
+        the model reads no roles)."""
         rotation = steps.frame[1]
         t_obs = steps.num_observed
         features, usable = history_features(
@@ -630,16 +650,19 @@ class SmoothAttentionPredictor(nn.Module):
             if self.config.num_roles > 0:
                 raise ValueError("the model reads agent roles; fit_normalisation needs them")
             roles = torch.zeros(usable.shape, dtype=torch.long)
-        weight, bias, _ = fit_highway(
-            features,
-            offsets,
-            usable & complete,
-            roles.long(),
-            self.highway_weight.shape[0],
-            self.config.highway_horizon,
-        )
+        num_roles, horizon = self.highway_weight.shape[0], self.config.highway_horizon
+        samples, roles = usable & complete, roles.long()
+        weight, bias, _ = fit_highway(features, offsets, samples, roles, num_roles, horizon)
         self.highway_weight.copy_(weight)
         self.highway_bias.copy_(bias)
+        fold = fold_of(torch.arange(features.shape[0]), CROSS_FIT_FOLDS)  # (B,)
+        for k in range(CROSS_FIT_FOLDS):
+            rest = fold != k
+            weight, bias, _ = fit_highway(
+                features[rest], offsets[rest], samples[rest], roles[rest], num_roles, horizon
+            )
+            self.highway_fold_weight[k].copy_(weight)
+            self.highway_fold_bias[k].copy_(bias)
 
     def _default_normalisation(self) -> None:
         """Unfitted scales: the car constants of the paper model (used when not standardise)."""
@@ -716,3 +739,4 @@ class _Steps:
     frame: AgentFrame | None = None  # agent frames (frame="agent") or None (scene frame)
     roles: Tensor | None = None  # (B, N, R) one-hot agent roles (num_roles > 0) or None
     role_index: Tensor | None = None  # (B, N) int64 agent roles (num_roles > 0) or None
+    scenes: Tensor | None = None  # (B,) int64 training-split indices (cross-fitted highway)

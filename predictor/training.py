@@ -123,6 +123,7 @@ def train_step(
         rollout=weights.sequence,
         sample=config.rollout_feed == "sample",
         roles=batch.roles,
+        scenes=batch.index,  # training scenes: the cross-fitted highway maps
     )
     loss, terms = compute_loss(out, batch.positions, batch.valid, num_observed, weights)
     if not math.isfinite(terms["loss"]):

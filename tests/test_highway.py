@@ -9,7 +9,13 @@ import pytest
 import torch
 
 from predictor.config import ModelConfig, make_configs
-from predictor.highway import fit_highway, future_offsets, history_features, velocity_changes
+from predictor.highway import (
+    CROSS_FIT_FOLDS,
+    fit_highway,
+    future_offsets,
+    history_features,
+    velocity_changes,
+)
 from predictor.model import SmoothAttentionPredictor
 
 torch.set_num_threads(1)
@@ -53,7 +59,7 @@ def test_fit_recovers_an_exact_linear_map_as_per_step_velocity_changes():
     weight, bias, alphas = fit_highway(features.float(), offsets.float(), usable, roles, 1, 7)
     assert weight.shape == (1, num_features, 7, 2) and bias.shape == (1, 7, 2)
     assert alphas[0] == pytest.approx(1e-3)  # noise-free: the smallest alpha of the grid
-    change = velocity_changes(features.float(), usable, roles, weight, bias)  # (B, N, 7, 2)
+    change = velocity_changes(features.float(), usable, weight[roles], bias[roles])  # (B,N,7,2)
     torch.testing.assert_close(
         change[:, :, :num_pred].cumsum(2), offsets.float(), atol=2e-3, rtol=0
     )
@@ -80,8 +86,10 @@ def test_history_and_future_features_follow_the_kinematics():
     rotation = torch.tensor([1.0, 0.0]).expand(2, 3, 2)  # world axes
     features, usable = history_features(pos, present, 6, rotation, 3)
     assert usable.all()
-    assert features.shape == (2, 3, 3 * 2 + 2 * 2)  # 3 velocities, 2 accelerations
-    torch.testing.assert_close(features[..., 4:6], positions[:, 5] - positions[:, 4])
+    # 3 velocities (the last without its lateral component: zero in the agent's own frame)
+    # and 2 accelerations
+    assert features.shape == (2, 3, 3 * 2 - 1 + 2 * 2)
+    torch.testing.assert_close(features[..., 4], positions[:, 5, :, 0] - positions[:, 4, :, 0])
     torch.testing.assert_close(features[..., :2], positions[:, 3] - positions[:, 2])
     accel = positions[:, 5] - 2 * positions[:, 4] + positions[:, 3]  # (B, N, 2)
     torch.testing.assert_close(features[..., -2:], accel, atol=1e-5, rtol=1e-4)
@@ -92,8 +100,6 @@ def test_history_and_future_features_follow_the_kinematics():
     valid[0, 2, 1] = False  # agent 1 of scene 0 misses a history step
     _, usable = history_features(pos, valid.transpose(0, 1), 6, rotation, 3)
     assert usable.tolist() == [[True, False, True], [True, True, True]]
-    with pytest.raises(ValueError, match="highway_steps"):
-        history_features(pos, present, 6, rotation, 6)
 
 
 def test_untrained_model_with_a_fitted_highway_rolls_out_the_true_accelerating_motion():
@@ -124,3 +130,35 @@ def test_highway_needs_the_anchored_rollout_and_s_attn_drops_it():
         ModelConfig(frame="agent", highway_steps=4)
     model, _ = make_configs("s_attn", {"highway_steps": 12}, preset="agent")
     assert model.highway_steps == 0 and model.rollout_prior == "previous"
+
+
+def test_training_scenes_roll_out_with_the_map_fitted_without_their_fold():
+    num_observed, steps = 8, 14
+    train, valid = accelerating_scenes(batch=30, steps=steps, agents=2, seed=3)
+    train = train + 0.002 * torch.randn(train.shape, generator=torch.Generator().manual_seed(4))
+    config = ModelConfig(**SMALL, **ANCHORED, highway_steps=4, highway_horizon=6)
+    model = SmoothAttentionPredictor(config)
+    model.fit_normalisation(train, valid, num_observed)
+    scenes = torch.arange(30)
+    held_out = scenes % CROSS_FIT_FOLDS == 2  # the scenes of fold 2
+    reference = SmoothAttentionPredictor(config)  # fitted on the other folds only
+    reference.fit_normalisation(train[~held_out], valid[~held_out], num_observed)
+    out = model(train, valid, num_observed, sample=False, scenes=scenes).rollout.mean
+    expected = reference.predict(train[held_out], valid[held_out], num_observed).rollout.mean
+    torch.testing.assert_close(out[held_out], expected)
+    full = model.predict(train, valid, num_observed).rollout.mean  # the map of all scenes
+    assert (full[held_out] - expected).abs().max() > 1e-4
+
+
+def test_fewer_observed_steps_than_the_highway_reads_leave_the_oldest_features_zero():
+    positions, valid = accelerating_scenes(batch=2, steps=10, agents=3)
+    pos, present = positions.transpose(0, 1), valid.transpose(0, 1)
+    rotation = torch.tensor([1.0, 0.0]).expand(2, 3, 2)
+    short, _ = history_features(pos, present, 4, rotation, 3)  # 3 velocities, as asked
+    padded, usable = history_features(pos, present, 4, rotation, 5)  # 5 asked, 3 observed
+    assert usable.all() and padded.shape[-1] == 4 * 5 - 3
+    assert not padded[..., :4].any() and not padded[..., 9:13].any()  # 2 velocities, 2 accels
+    torch.testing.assert_close(padded[..., 4:9], short[..., :5])
+    torch.testing.assert_close(padded[..., 13:], short[..., 5:])
+    with pytest.raises(ValueError, match="at least 3 observed steps"):
+        history_features(pos, present, 2, rotation, 3)
