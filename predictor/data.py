@@ -18,6 +18,11 @@ from torch.utils.data import DataLoader, Dataset
 
 from predictor.format import DatasetMeta, FormatError, TrajectorySet, read_meta, read_split
 
+# agent slots a dataset has at least: the model builds the N(N-1) directed edges between slots
+# and fails on a split of one slot (no edges, e.g. ETH/UCY windows of one pedestrian), so such
+# a split gets an invalid, non-focal second slot, which changes no prediction and no metric
+MIN_AGENT_SLOTS = 2
+
 
 @dataclass
 class Batch:
@@ -99,7 +104,8 @@ class TrajectoryDataset(Dataset):
         path: a trajectory file (schema 1 or 2).
         split: "train", "val" or "test".
         case: keep only this case (one of the file's case_names); None keeps all.
-    Raises FormatError for an invalid file or an unknown case name.
+    Raises FormatError for an invalid file or an unknown case name. A split of fewer than
+    MIN_AGENT_SLOTS agent slots is padded to that many (invalid, non-focal) slots.
     """
 
     def __init__(self, path: str | os.PathLike, split: str, case: str | None = None) -> None:
@@ -114,6 +120,8 @@ class TrajectoryDataset(Dataset):
                     f"{', '.join(self.meta.case_names)}"
                 )
             data = data.select_case(self.meta.case_names.index(case))
+        if data.num_agents < MIN_AGENT_SLOTS:
+            data = data.pad_agents(MIN_AGENT_SLOTS)
         self.case = case
         self.data: TrajectorySet = data  # numpy arrays, e.g. for plots and evaluation
         self._all = batch_from_set(data)

@@ -351,11 +351,14 @@ class TrajectorySet:
         if len(steps) != 1:
             raise FormatError(f"cannot concatenate sets with different T: {sorted(steps)}")
         agents = max(s.num_agents for s in sets)
-        padded = [s._pad_agents(agents).arrays() for s in sets]
+        padded = [s.pad_agents(agents).arrays() for s in sets]
         return TrajectorySet(**{k: np.concatenate([p[k] for p in padded]) for k in _FIELDS})
 
-    def _pad_agents(self, num_agents: int) -> TrajectorySet:
+    def pad_agents(self, num_agents: int) -> TrajectorySet:
+        """The set with its agent axis padded to `num_agents` slots (as in `concatenate`)."""
         extra = num_agents - self.num_agents
+        if extra < 0:
+            raise ValueError(f"cannot pad {self.num_agents} agent slots down to {num_agents}")
         if extra == 0:
             return self
         fill = {"attention": -1}

@@ -1,0 +1,71 @@
+"""Import a public trajectory data set into the project's dataset format (schema 2, HDF5).
+
+    python tools/import_data.py eth-ucy DATA/ETH_UCY --out data/
+    python tools/import_data.py eth-ucy DATA/ETH_UCY --out data/ --scenes hotel zara1
+
+eth-ucy: ROOT holds the scenes eth, hotel, univ, zara1, zara2, each with train/, val/ and test/
+folders of `frame ped x y` text files (the standard leave-one-out layout); writes
+OUT/eth_ucy_<scene>.h5 per scene: 8 observed + 12 predicted steps of 0.4 s, windows of 20 frames
+with stride 1, the pedestrians present in all 20 frames focal (scored). See
+pipeline/importers/eth_ucy.py. The data is read from disk as downloaded; nothing is fetched.
+
+All files or none are written; an existing output is refused unless --overwrite. Exit status: 0
+written; 2 usage error or malformed input (one line naming the file and line); 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from pipeline.cli import ArgumentParser, fail, run_main
+from pipeline.importers.common import ImportDataError
+from pipeline.importers.eth_ucy import SCENES, EthUcyConfig, import_eth_ucy
+from predictor.format import FormatError, summarize
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = ArgumentParser(prog="import_data.py", description=__doc__.splitlines()[0])
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=ArgumentParser)
+    eth = commands.add_parser("eth-ucy", help="ETH/UCY pedestrians, leave-one-out folders")
+    eth.add_argument("root", help="folder holding <scene>/{train,val,test}/*.txt")
+    eth.add_argument("--out", required=True, help="output folder (must exist)")
+    defaults = EthUcyConfig()
+    eth.add_argument(
+        "--scenes",
+        nargs="+",
+        choices=SCENES,
+        default=list(defaults.scenes),
+        help=f"scenes to import (default all: {' '.join(SCENES)})",
+    )
+    eth.add_argument(
+        "--stride",
+        type=int,
+        default=defaults.stride,
+        help=f"steps between window starts (default {defaults.stride})",
+    )
+    eth.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    try:
+        config = EthUcyConfig(scenes=tuple(args.scenes), stride=args.stride)
+    except ValueError as err:
+        fail(str(err))
+    try:
+        paths = import_eth_ucy(args.root, args.out, config, overwrite=args.overwrite)
+    except KeyboardInterrupt:
+        fail("interrupted; nothing was written", code=130)
+    except (ImportDataError, FormatError) as err:
+        fail(str(err))
+    except OSError as err:
+        fail(f"cannot write to {args.out}: {err.strerror or err}")
+    for path in paths:
+        print(summarize(Path(path)), end="\n\n")
+    print(f"wrote {len(paths)} file(s) to {args.out}")
+
+
+if __name__ == "__main__":
+    run_main(main)
