@@ -13,10 +13,11 @@ from conftest import REPO_ROOT, tool_env
 
 from pipeline.importers.common import ImportDataError, Tracks, frame_step
 from pipeline.importers.eth_ucy import EthUcyConfig, import_eth_ucy
+from pipeline.importers.interaction import InteractionConfig, import_interaction
 from predictor.config import make_configs
 from predictor.data import TrajectoryDataset
 from predictor.evaluation import evaluate_baseline, evaluate_run
-from predictor.format import read_dataset
+from predictor.format import SPLITS, read_dataset
 from predictor.training import train
 
 TOOL = REPO_ROOT / "tools" / "import_data.py"
@@ -103,7 +104,7 @@ def test_windows_counted_by_hand_read_back(tmp_path: Path) -> None:
     assert sources["hotel/train/b.txt"]["frame_step"] == 6
     assert sources["hotel/train/a.txt"]["windows"] == 5
     assert splits["val"].focal.tolist() == [[True, False]]
-    assert "wrote 1 file(s)" in result.stdout
+    assert f"wrote 1 file(s): {path}" in result.stdout
 
 
 def test_constant_velocity_equals_an_independent_computation(tmp_path: Path) -> None:
@@ -196,3 +197,109 @@ def test_single_pedestrian_windows_train_and_evaluate(tmp_path: Path) -> None:
     train(path, model_cfg, train_cfg, tmp_path / "run", progress=False)
     scores = evaluate_run(tmp_path / "run", path, "test").scores["main_agents"]["overall"]
     assert scores["count"] == 3 * 12 and scores["ade"] is not None  # 3 windows, 12 steps
+
+
+# ---------------------------------------------------------------------------------------------
+# INTERACTION track CSVs
+
+HEADER = "case_id,track_id,frame_id,timestamp_ms,agent_type,x,y,vx,vy,psi_rad,length,width"
+
+
+def interaction_rows(case: int, with_case: bool = True, heading: bool = False) -> list[str]:
+    """One sequence, frames 1..110 (0.1 s): track 1 (a car) at every frame, track 2 (a
+    pedestrian) at frames 6..105 (100 frames). Windows of 100 frames every 10: starts 1 and 11,
+    each with track 1 focal and track 2 present but not at every frame. x encodes the case."""
+    out = []
+    for frame in range(1, 111):
+        tracks = [(1, "car")] + ([(2, "pedestrian/bicycle")] if 6 <= frame <= 105 else [])
+        for track, kind in tracks:
+            x, y = 1000.0 * case + 0.5 * frame, 3.0 * track
+            psi = "0.1" if heading or kind == "car" else ""
+            size = "4.0,1.8" if kind == "car" else ","
+            fields = [str(track), str(frame), str(frame * 100), kind, f"{x}", f"{y}", "5", "0"]
+            row = ",".join([*fields, psi, size])
+            out.append(f"{case},{row}" if with_case else row)
+    return out
+
+
+def write_interaction(folder: Path, heading: bool = False) -> None:
+    """10 sequences: a.csv without case_id (x ~ 0) and b.csv with cases 1..9."""
+    folder.mkdir(parents=True, exist_ok=True)
+    plain = HEADER.split(",", 1)[1]
+    a = interaction_rows(0, with_case=False, heading=heading)
+    (folder / "a.csv").write_text("\n".join([plain, *a]) + "\n")
+    b = [row for case in range(1, 10) for row in interaction_rows(case, heading=heading)]
+    (folder / "b.csv").write_text("\n".join([HEADER, *b]) + "\n")
+
+
+def test_interaction_split_by_sequence_80_10_10(tmp_path: Path) -> None:
+    write_interaction(tmp_path / "raw")
+    out = tmp_path / "inter.h5"
+    result = run_tool("interaction", tmp_path / "raw", "--out", out)
+    assert result.returncode == 0, result.stderr
+    meta, splits = read_dataset(out)
+    assert (meta.dt, meta.num_observed, meta.num_predicted) == (0.1, 40, 60)
+    assert meta.state_names == ("x", "y", "vx", "vy")  # pedestrians have no psi_rad
+    assert meta.role_names == ("car", "pedestrian/bicycle") and meta.recorded == ("roles",)
+    assert [splits[s].n for s in SPLITS] == [16, 2, 2]  # 8, 1, 1 sequences of 2 windows
+    seen = {}
+    for split, data in splits.items():
+        assert data.focal.tolist() == [[True, False]] * data.n
+        assert data.roles.tolist() == [[0, 1]] * data.n
+        starts = data.states[:, 0, 0, 0] % 1000  # 0.5 * first frame: windows at 1 and 11
+        assert sorted(starts.tolist()) == sorted([0.5, 5.5] * (data.n // 2))
+        for case in np.round(data.states[:, 0, 0, 0] // 1000).astype(int).tolist():
+            assert seen.setdefault(case, split) == split  # a sequence in one split only
+        # track 2 enters at frame 6: in the window starting at frame 1, from its 6th step
+        first = data.states[:, 0, 0, 0] % 1000 == 0.5
+        assert (data.valid[first, :, 1] == (np.arange(100) >= 5)).all()
+    assert sorted(seen) == list(range(10))
+    listing = {s["sequence"]: s["split"] for s in meta.config["sequences"]}
+    assert len(listing) == 10 and sorted(listing.values()).count("train") == 8
+
+
+def test_interaction_heading_channel_when_every_row_has_one(tmp_path: Path) -> None:
+    write_interaction(tmp_path / "raw", heading=True)
+    out = tmp_path / "inter.h5"
+    import_interaction([tmp_path / "raw"], out, InteractionConfig(), overwrite=False)
+    meta, splits = read_dataset(out)
+    assert meta.state_names == ("x", "y", "vx", "vy", "heading")
+    assert np.allclose(splits["train"].states[..., 4][splits["train"].valid], 0.1)
+
+
+@pytest.mark.parametrize(
+    ("edit", "where", "message"),
+    [
+        (lambda lines: lines.insert(3, "1,2,3"), ":4: ", "3 fields, the header names 12"),
+        (lambda lines: lines.__setitem__(0, "track_id,frame_id"), ":1: ", "missing column(s)"),
+        (
+            lambda lines: lines.__setitem__(4, lines[4].replace(",car,", ",,")),
+            ":5: ",
+            "empty agent_type",
+        ),
+        (
+            lambda lines: lines.__setitem__(1, lines[1].replace("1000.5", "x")),
+            ":2: ",
+            "x 'x' is not a number",
+        ),
+        (
+            lambda lines: lines.__setitem__(5, lines[5].replace(",500,", ",550,")),
+            ":6: ",
+            "timestamp_ms 550 is not 0.1 s",
+        ),
+    ],
+)
+def test_interaction_malformed_input_exits_2_naming_the_line(tmp_path, edit, where, message):
+    write_interaction(tmp_path / "raw")
+    bad = tmp_path / "raw" / "b.csv"
+    lines = bad.read_text().splitlines()
+    edit(lines)
+    bad.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out" / "inter.h5"
+    out.parent.mkdir()
+    result = run_tool("interaction", tmp_path / "raw", "--out", out)
+    assert result.returncode == 2
+    errors = result.stderr.strip().splitlines()
+    assert len(errors) == 1 and errors[0].startswith(f"error: {bad}{where}"), errors
+    assert message in errors[0]
+    assert list(out.parent.iterdir()) == []

@@ -19,13 +19,28 @@ class ImportDataError(ValueError):
 
 @dataclass(frozen=True)
 class Tracks:
-    """Positions of one recording, one row per (frame, agent) observation, sorted by frame."""
+    """One recording (a sequence), one row per (frame, agent) observation."""
 
     source: str  # file the rows came from (for messages and the file's config)
     line: np.ndarray  # (R,) int64 line number of each row in the source (1-based)
     frame: np.ndarray  # (R,) int64 frame ids
     agent: np.ndarray  # (R,) int64 agent ids
-    xy: np.ndarray  # (R, 2) float64 positions [m]
+    values: np.ndarray  # (R, C) float64 state channels, x [m] and y [m] first
+
+
+@dataclass(frozen=True)
+class Windows:
+    """The windows cut from one recording (W windows, T steps, A agent slots, C channels)."""
+
+    states: np.ndarray  # (W, T, A, C) float32, 0 where invalid
+    valid: np.ndarray  # (W, T, A) bool
+    focal: np.ndarray  # (W, A) bool: present at all T steps
+    agent: np.ndarray  # (W, A) int64 agent id of each slot, -1 for padding
+
+    @property
+    def count(self) -> int:
+        """Number of windows, W."""
+        return int(self.valid.shape[0])
 
 
 def frame_step(tracks: Tracks) -> int:
@@ -48,84 +63,74 @@ def frame_step(tracks: Tracks) -> int:
     return step
 
 
-def cut_windows(
-    tracks: Tracks, num_steps: int, stride: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def cut_windows(tracks: Tracks, num_steps: int, stride: int) -> Windows:
     """Windows of `num_steps` frames on the recording's frame grid (frame_step apart), one
     starting every `stride` grid steps from the first frame, up to the last frame.
 
-    Returns (positions (W, T, A, 2) float32, valid (W, T, A), focal (W, A)), A the largest number
-    of agents seen in one window; agents are ordered by id and padded as invalid. Every agent
-    seen at any frame of a window is in it; the focal agents are those present at all T frames.
-    Windows without a focal agent are dropped (nothing in them would be scored).
+    Agents are ordered by id and padded as invalid up to A, the largest number of agents seen
+    in one window. Every agent seen at any frame of a window is in it; the focal agents are
+    those present at all T frames. Windows without a focal agent are dropped (nothing in them
+    would be scored).
     """
+    channels = tracks.values.shape[1]
     step = frame_step(tracks)
-    if step == 0:
-        return _no_windows(num_steps)
-    grid = (tracks.frame - tracks.frame.min()) // step  # (R,) grid index of each row
-    span = int(grid.max()) + 1
+    span = 0 if step == 0 else int((tracks.frame.max() - tracks.frame.min()) // step) + 1
     starts = np.arange(0, span - num_steps + 1, stride)
-    if len(starts) == 0:
-        return _no_windows(num_steps)
     agents, column = np.unique(tracks.agent, return_inverse=True)  # (P,), (R,)
-    table = np.zeros((span, len(agents), 2))
+    table = np.zeros((span, len(agents), channels))
     present = np.zeros((span, len(agents)), dtype=bool)
-    table[grid, column] = tracks.xy
-    present[grid, column] = True
-    windows = []
+    if len(starts):
+        grid = (tracks.frame - tracks.frame.min()) // step  # (R,) grid index of each row
+        table[grid, column] = tracks.values
+        present[grid, column] = True
+    chosen = []
     for start in starts:
         here = present[start : start + num_steps]  # (T, P)
         seen = np.flatnonzero(here.any(axis=0))
-        full = here[:, seen].all(axis=0)
-        if full.any():
-            windows.append((start, seen, full))
-    if not windows:
-        return _no_windows(num_steps)
-    width = max(len(seen) for _, seen, _ in windows)
-    positions = np.zeros((len(windows), num_steps, width, 2), dtype=np.float32)
-    valid = np.zeros((len(windows), num_steps, width), dtype=bool)
-    focal = np.zeros((len(windows), width), dtype=bool)
-    for w, (start, seen, full) in enumerate(windows):
-        rows = slice(start, start + num_steps)
-        valid[w, :, : len(seen)] = present[rows][:, seen]
-        positions[w, :, : len(seen)] = np.where(
-            valid[w, :, : len(seen), None], table[rows][:, seen], 0.0
-        )
-        focal[w, : len(seen)] = full
-    return positions, valid, focal
-
-
-def _no_windows(num_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return (
-        np.zeros((0, num_steps, 0, 2), np.float32),
-        np.zeros((0, num_steps, 0), bool),
-        np.zeros((0, 0), bool),
+        if here[:, seen].all(axis=0).any():
+            chosen.append((start, seen))
+    width = max((len(seen) for _, seen in chosen), default=0)
+    out = Windows(
+        states=np.zeros((len(chosen), num_steps, width, channels), dtype=np.float32),
+        valid=np.zeros((len(chosen), num_steps, width), dtype=bool),
+        focal=np.zeros((len(chosen), width), dtype=bool),
+        agent=np.full((len(chosen), width), -1, dtype=np.int64),
     )
+    for w, (start, seen) in enumerate(chosen):
+        rows, slots = slice(start, start + num_steps), slice(0, len(seen))
+        out.valid[w, :, slots] = present[rows][:, seen]
+        out.states[w, :, slots] = np.where(out.valid[w, :, slots, None], table[rows][:, seen], 0)
+        out.focal[w, slots] = out.valid[w, :, slots].all(axis=0)
+        out.agent[w, slots] = agents[seen]
+    return out
 
 
-def positions_only_set(
-    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]], num_steps: int
+def windows_set(
+    parts: list[tuple[Windows, np.ndarray | None]],
+    num_steps: int,
+    num_channels: int,
 ) -> TrajectorySet:
-    """One split from the windows of several recordings: positions, validity and focal mask
-    only (the optional datasets hold their neutral values), agent axis padded to the widest."""
+    """One split from the windows of several recordings, each with its slots' roles (W, A) int8
+    or None (role 0): states, validity, focal mask and roles (the other optional datasets hold
+    their neutral values), agent axis padded to the widest."""
     sets = []
-    for positions, valid, focal in parts:
-        n, _, agents = valid.shape
+    for windows, roles in parts:
+        n, _, agents = windows.valid.shape
         sets.append(
             TrajectorySet(
-                states=positions,
+                states=windows.states,
                 actions=np.zeros((n, num_steps, agents, 0), np.float32),
-                valid=valid,
+                valid=windows.valid,
                 attention=np.full((n, num_steps, agents), -1, np.int16),
                 interaction=np.zeros((n, num_steps), bool),
                 case=np.zeros(n, np.int8),
                 seed=np.full(n, -1, np.int64),
-                roles=np.zeros((n, agents), np.int8),
-                focal=focal,
+                roles=np.zeros((n, agents), np.int8) if roles is None else roles,
+                focal=windows.focal,
             )
         )
     if not sets:
-        return TrajectorySet.empty(num_steps, 0, num_states=2, num_actions=0)
+        return TrajectorySet.empty(num_steps, 0, num_states=num_channels, num_actions=0)
     return TrajectorySet.concatenate(sets)
 
 

@@ -34,7 +34,7 @@ from pipeline.importers.common import (
     check_outputs,
     cut_windows,
     frame_step,
-    positions_only_set,
+    windows_set,
     write_all,
 )
 from predictor.format import SPLITS, DatasetMeta, TrajectorySet
@@ -90,7 +90,7 @@ def read_tracks(path: Path) -> Tracks:
         line=np.array(lines, dtype=np.int64),
         frame=table[:, 0].astype(np.int64),
         agent=table[:, 1].astype(np.int64),
-        xy=table[:, 2:],
+        values=table[:, 2:],
     )
     _check_unique(tracks)
     return tracks
@@ -145,18 +145,18 @@ def import_scene(
         parts, sources[split] = [], []
         for path in paths:
             tracks = read_tracks(path)
-            positions, valid, focal = cut_windows(tracks, config.num_steps, config.stride)
-            parts.append((positions, valid, focal))
+            windows = cut_windows(tracks, config.num_steps, config.stride)
+            parts.append((windows, None))
             sources[split].append(
                 {
                     "file": os.path.relpath(path, root),
                     "frame_step": frame_step(tracks),
                     "pedestrians": len(np.unique(tracks.agent)),
-                    "windows": int(valid.shape[0]),
-                    "focal_agents": int(focal.sum()),
+                    "windows": windows.count,
+                    "focal_agents": int(windows.focal.sum()),
                 }
             )
-        splits[split] = positions_only_set(parts, config.num_steps)
+        splits[split] = windows_set(parts, config.num_steps, num_channels=2)
     meta = DatasetMeta(
         scenario=f"eth_ucy_{scene}",
         dt=config.dt_s,
