@@ -36,7 +36,10 @@ from tqdm import tqdm
 from pipeline.episode_runner import DeferredSignals, run_slots
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 from scenarios import SCENARIOS, Scenario
+from scenarios.base import BROWN, GREEN
 from scenarios.rollout import Episode
+
+FOCAL_AGENTS = (GREEN, BROWN)  # the two main cars: the agents scored and selecting checkpoints
 
 SEED_STRIDE = 1_000_000  # trajectory seeds: SEED_STRIDE * seed + k
 DEFAULT_MINOR_RATIO = 0.3  # the paper uses 0.3 and 0.8
@@ -285,8 +288,12 @@ def _to_trajectory_set(episodes: list[Episode], case_names: tuple[str, ...]) -> 
     def stack(name: str, dtype) -> np.ndarray:
         return np.stack([getattr(e, name) for e in episodes]).astype(dtype)
 
+    states = stack("states", np.float32)  # (n, T, N, 4)
+    focal = np.zeros((states.shape[0], states.shape[2]), dtype=bool)  # (n, N)
+    focal[:, list(FOCAL_AGENTS)] = True
     return TrajectorySet(
-        states=stack("states", np.float32),
+        states=states,
+        focal=focal,
         actions=stack("actions", np.float32),
         valid=stack("valid", bool),
         attention=stack("attention", np.int16),

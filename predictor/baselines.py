@@ -24,7 +24,8 @@ is chosen by grouped k-fold cross-validation (folds never split a scene) with sc
 model is fitted per agent role (roles differ in behaviour: the synthetic main cars change lanes, the
 distractors do not). Agents whose history is incomplete, and roles with fewer than two training
 scenes, are predicted by constant velocity. The agent's heading is taken from the data where it
-has one, else from its last observed displacement.
+has one (`ridge_states` puts it in channel 2), else from its last observed displacement
+(`displacement_heading`): pedestrian data, for one, records positions only.
 """
 
 from __future__ import annotations
@@ -125,6 +126,22 @@ class _Frames:
         return np.einsum("...ji,...j->...i", rotation, points) + origin
 
 
+def ridge_states(states: np.ndarray, state_names: tuple[str, ...]) -> np.ndarray:
+    """(n, T, N, C) states named `state_names` -> what RidgeBaseline reads: x, y and, where the
+    data has a "heading" channel, the heading (n, T, N, 2 or 3)."""
+    channels = [0, 1] + ([state_names.index("heading")] if "heading" in state_names else [])
+    return states[..., channels]
+
+
+def displacement_heading(positions: np.ndarray, t0: int) -> np.ndarray:
+    """(n, T, N, 2) positions -> (n, T, N) heading [rad] whose step t0 is the direction of the
+    last displacement p[t0] - p[t0-1] (0 where the agent did not move); other steps are 0."""
+    step = positions[:, t0] - positions[:, t0 - 1]  # (n, N, 2)
+    heading = np.zeros(positions.shape[:3])
+    heading[:, t0] = np.arctan2(step[..., 1], step[..., 0])
+    return heading
+
+
 def _frames(positions: np.ndarray, heading: np.ndarray, t0: int) -> _Frames:
     cos, sin = np.cos(heading[:, t0]), np.sin(heading[:, t0])  # (n, N)
     rotation = np.stack([np.stack([cos, sin], -1), np.stack([-sin, cos], -1)], -2)  # (n,N,2,2)
@@ -154,7 +171,8 @@ class RidgeBaseline:
         num_observed: int,
         dt: float,
     ) -> RidgeBaseline:
-        """Fit on n training scenes: states (n, T, N, 4), valid/attention (n, T, N), roles (n, N).
+        """Fit on n training scenes: states (n, T, N, 2 or more: x, y and optionally the heading,
+        see `ridge_states`), valid/attention (n, T, N), roles (n, N).
 
         Samples are the (scene, agent) pairs present over the whole history window and future.
         """
@@ -216,11 +234,19 @@ class RidgeBaseline:
         t0, history = self.num_observed - 1, self.history
         window = slice(t0 - history, t0 + 1)  # history + 1 positions -> history velocities
         positions = states[..., :2].astype(np.float64)
-        frames = _frames(positions, states[..., 2].astype(np.float64), t0)
+        if states.shape[-1] > 2:
+            heading = states[..., 2].astype(np.float64)
+        else:
+            heading = displacement_heading(positions, t0)
+        frames = _frames(positions, heading, t0)
         track = positions[:, window].transpose(0, 2, 1, 3)  # (n, N, H+1, 2) world
         present = valid[:, window].all(axis=1)  # (n, N)
         own = frames.to_local(track)  # (n, N, H+1, 2)
         velocity = np.diff(own, axis=2) / self.dt  # (n, N, H, 2)
+        if states.shape[-1] <= 2:
+            # the frame's x axis is the last velocity, so its lateral component is zero but for
+            # rounding, which standardising would blow up into a unit-variance noise feature
+            velocity[:, :, -1, 1] = 0.0
         acceleration = np.diff(velocity, axis=2) / self.dt  # (n, N, H-1, 2)
         n, num_agents = present.shape
         parts = [velocity.reshape(n, num_agents, -1), acceleration.reshape(n, num_agents, -1)]

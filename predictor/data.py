@@ -1,8 +1,9 @@
 """Torch access to a trajectory file: an in-memory `TrajectoryDataset` and named `Batch`es.
 
-A dataset holds one split (optionally one case) of a schema-v1 file, read and validated through
-`predictor.format`. `dataset[i]` is a `Batch` of one scene (batch size 1); `collate_batch`
-concatenates such items along the batch axis. Layout is `[B, T, N, F]`, time-major per scene.
+A dataset holds one split (optionally one case) of a trajectory file (schema 1 or 2), read and
+validated through `predictor.format`. `dataset[i]` is a `Batch` of one scene (batch size 1);
+`collate_batch` concatenates such items along the batch axis. Layout is `[B, T, N, F]`,
+time-major per scene.
 """
 
 from __future__ import annotations
@@ -17,18 +18,24 @@ from torch.utils.data import DataLoader, Dataset
 
 from predictor.format import DatasetMeta, FormatError, TrajectorySet, read_meta, read_split
 
+# agent slots a dataset has at least: the model builds the N(N-1) directed edges between slots
+# and fails on a split of one slot (no edges, e.g. ETH/UCY windows of one pedestrian), so such
+# a split gets an invalid, non-focal second slot, which changes no prediction and no metric
+MIN_AGENT_SLOTS = 2
+
 
 @dataclass
 class Batch:
     """A batch of scenes. Absent agents have zero states and `valid == False`."""
 
-    states: torch.Tensor  # (B, T, N, 4) float32: x [m], y [m], heading [rad], speed [m/s]
+    states: torch.Tensor  # (B, T, N, C) float32: meta.state_names, x [m] and y [m] first
     valid: torch.Tensor  # (B, T, N) bool: agent present at that step
     attention: torch.Tensor  # (B, T, N) int64: ground-truth attended agent, -1 = none
     interaction: torch.Tensor  # (B, T) bool: inside the interaction period
     case: torch.Tensor  # (B,) int64: index into meta.case_names
     seed: torch.Tensor  # (B,) int64: generating seed, -1 for foreign data
     roles: torch.Tensor | None = None  # (B, N) int64: index into meta.role_names
+    focal: torch.Tensor | None = None  # (B, N) bool: agents scored (and weighted in the loss)
     index: torch.Tensor | None = None  # (B,) int64: each scene's position in its split
 
     @property
@@ -77,7 +84,7 @@ def collate_batch(items: Sequence[Batch]) -> Batch:
 def batch_from_set(data: TrajectorySet) -> Batch:
     """All trajectories of a TrajectorySet as one Batch; states of absent agents are zeroed."""
     valid = torch.from_numpy(np.ascontiguousarray(data.valid))  # (B, T, N)
-    states = torch.from_numpy(np.ascontiguousarray(data.states))  # (B, T, N, 4)
+    states = torch.from_numpy(np.ascontiguousarray(data.states))  # (B, T, N, C)
     states = torch.where(valid[..., None], states, torch.zeros((), dtype=states.dtype))
     return Batch(
         states=states,
@@ -87,6 +94,7 @@ def batch_from_set(data: TrajectorySet) -> Batch:
         case=torch.from_numpy(data.case.astype(np.int64)),  # (B,)
         seed=torch.from_numpy(data.seed.astype(np.int64)),  # (B,)
         roles=torch.from_numpy(data.roles.astype(np.int64)),  # (B, N)
+        focal=torch.from_numpy(np.ascontiguousarray(data.focal)),  # (B, N)
         index=torch.arange(len(data.valid)),  # (B,)
     )
 
@@ -95,10 +103,11 @@ class TrajectoryDataset(Dataset):
     """One split of a trajectory file, held in memory as tensors.
 
     Args:
-        path: a schema-v1 trajectory file.
+        path: a trajectory file (schema 1 or 2).
         split: "train", "val" or "test".
         case: keep only this case (one of the file's case_names); None keeps all.
-    Raises FormatError for an invalid file or an unknown case name.
+    Raises FormatError for an invalid file or an unknown case name. A split of fewer than
+    MIN_AGENT_SLOTS agent slots is padded to that many (invalid, non-focal) slots.
     """
 
     def __init__(self, path: str | os.PathLike, split: str, case: str | None = None) -> None:
@@ -113,6 +122,8 @@ class TrajectoryDataset(Dataset):
                     f"{', '.join(self.meta.case_names)}"
                 )
             data = data.select_case(self.meta.case_names.index(case))
+        if data.num_agents < MIN_AGENT_SLOTS:
+            data = data.pad_agents(MIN_AGENT_SLOTS)
         self.case = case
         self.data: TrajectorySet = data  # numpy arrays, e.g. for plots and evaluation
         self._all = batch_from_set(data)

@@ -10,6 +10,9 @@
   predicted steps] when the observed history of the agent it attends to (its label) is replaced
   by that agent slot's history from another scene, next to the same swap of a distractor. An
   interaction pathway that carries information moves the prediction more for the labelled car.
+
+"Main agents" are the focal agents of each scene (the data's `focal` mask, see
+`predictor.metrics`); "distractors" are the others.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ import torch
 
 from predictor.baselines import scene_labels
 from predictor.data import Batch
-from predictor.metrics import MAIN_AGENTS, prediction_mask
+from predictor.metrics import focal_slots, focal_view, prediction_mask
 from predictor.model import SmoothAttentionPredictor
 
 # (states (n, T, N, C), valid (n, T, N)) -> predicted means (n, T_pred, N, 2) [m]
@@ -41,11 +44,14 @@ def error_curve(
     return [float(t / c) if c else None for t, c in zip(totals, counts, strict=True)]
 
 
-def error_curves(pred: np.ndarray, true: np.ndarray, valid: np.ndarray, num_observed: int) -> dict:
-    """`error_curve` of the main agents and of all agents: {"main_agents": [...], ...}."""
+def error_curves(
+    pred: np.ndarray, true: np.ndarray, valid: np.ndarray, num_observed: int, focal: np.ndarray
+) -> dict:
+    """`error_curve` of the focal (main) agents (focal (n, N)) and of all agents:
+    {"main_agents": [...], "all_agents": [...]}."""
     mask = prediction_mask(valid, num_observed)
     return {
-        "main_agents": error_curve(pred, true, mask, slice(0, MAIN_AGENTS)),
+        "main_agents": error_curve(*focal_view(pred, true, mask, focal), slice(None)),
         "all_agents": error_curve(pred, true, mask, slice(None)),
     }
 
@@ -61,8 +67,11 @@ def one_step_errors(
 ) -> dict:
     """Teacher-forced one-step error [m] over the predicted window (targets t = T_obs .. T-1,
     agent present at t-1 and t) and the constant-velocity one-step error on the same items
-    (the true deviation |p^t - 2 p^{t-1} + p^{t-2}|, where t-2 is present too), per agent group.
+    (the true deviation |p^t - 2 p^{t-1} + p^{t-2}|, where t-2 is present too), per agent group
+    (`main_agents`: the batch's focal agents, which it must have).
     """
+    if batch.focal is None:
+        raise ValueError("one_step_errors needs the focal mask of the batch")
     model.eval()
     positions, valid = batch.positions, batch.valid
     dists = []
@@ -79,12 +88,22 @@ def one_step_errors(
     cv_dist = (prior - target).norm(dim=-1)  # (n, T_pred, N)
     mask = valid[:, num_observed:] & valid[:, num_observed - 1 : -1]
     mask = mask & valid[:, num_observed - 2 : -2]
+    slots, present = (torch.from_numpy(a) for a in focal_slots(batch.focal.numpy()))
+    index = slots.unsqueeze(1).expand(-1, mask.shape[1], -1)  # (n, T_pred, K)
+    groups = {
+        "main_agents": (
+            model_dist.gather(2, index),
+            cv_dist.gather(2, index),
+            mask.gather(2, index) & present.unsqueeze(1),
+        ),
+        "all_agents": (model_dist, cv_dist, mask),
+    }
     result = {}
-    for group, agents in (("main_agents", slice(0, MAIN_AGENTS)), ("all_agents", slice(None))):
-        keep = mask[..., agents].to(model_dist.dtype)
+    for group, (model_part, cv_part, keep) in groups.items():
+        keep = keep.to(model_dist.dtype)
         result[group] = {
-            "model_m": _mean_over(model_dist[..., agents], keep),
-            "const_vel_m": _mean_over(cv_dist[..., agents], keep),
+            "model_m": _mean_over(model_part, keep),
+            "const_vel_m": _mean_over(cv_part, keep),
         }
     return result
 
@@ -109,38 +128,46 @@ def counterfactual_shift(
     valid: np.ndarray,
     attention: np.ndarray,
     num_observed: int,
+    focal: np.ndarray,
 ) -> dict:
-    """Mean shift [m] of each main agent's prediction when its labelled car's observed history
-    is swapped with another scene's ("labelled_m"), and when a distractor's is ("distractor_m":
-    agent slot MAIN_AGENTS + b mod (N - MAIN_AGENTS) of scene b, never the labelled car).
+    """Mean shift [m] of each focal (main) agent's prediction when its labelled car's observed
+    history is swapped with another scene's ("labelled_m"), and when a distractor's is
+    ("distractor_m": the (b mod D)-th of the D non-focal slots of scene b, in slot order, the
+    next one where that is the labelled car).
 
     `predict(states, valid)` returns the predicted means (n, T_pred, N, 2) of the scenes;
-    states (n, T, N, C), valid (n, T, N), attention labels (n, T, N). A (scene, main agent)
-    pair counts where the agent has a label and the swapped agent is present at the last
-    observed step in both scenes. None where nothing counts (fewer than 2 scenes, say).
+    states (n, T, N, C), valid (n, T, N), attention labels (n, T, N), focal (n, N). A (scene,
+    main agent) pair counts where the agent has a label, the scene has at least two non-focal
+    slots and the swapped agent is present at the last observed step in both scenes. None where
+    nothing counts (fewer than 2 scenes, say).
     """
-    n, num_agents = valid.shape[0], valid.shape[2]
+    n = valid.shape[0]
     none = {"labelled_m": None, "distractor_m": None, "pairs": 0}
-    if n < 2 or num_agents <= MAIN_AGENTS + 1:
+    others = (~focal).sum(axis=1)  # (n,) non-focal slots per scene
+    if n < 2 or not (others >= 2).any():
         return none
     base = predict(states, valid)  # (n, T_pred, N, 2)
     labels = scene_labels(attention)  # (n, N)
     last = valid[:, num_observed - 1]  # (n, N)
     both = last & np.roll(last, -1, axis=0)  # present at T_obs-1 here and in the donor scene
-    rows, span = np.arange(n), num_agents - MAIN_AGENTS
+    rows, span = np.arange(n), np.maximum(others, 1)
+    order = np.argsort(focal, axis=1, kind="stable")  # (n, N): non-focal slots first
+    slots, present = focal_slots(focal)  # (n, K)
     shifts: dict[str, list[float]] = {"labelled": [], "distractor": []}
-    for main in range(MAIN_AGENTS):
-        labelled = labels[:, main]
-        distractor = MAIN_AGENTS + rows % span
+    for rank in range(slots.shape[1]):
+        main = slots[:, rank]  # (n,) the rank-th focal slot of each scene
+        labelled = labels[rows, main]
+        pick = rows % span
+        distractor = order[rows, pick]
         clash = distractor == labelled
-        distractor[clash] = MAIN_AGENTS + (distractor[clash] - MAIN_AGENTS + 1) % span
-        ok = (labelled >= 0) & last[:, main] & both[rows, np.maximum(labelled, 0)]
-        ok &= both[rows, distractor]
+        distractor[clash] = order[rows[clash], (pick[clash] + 1) % span[clash]]
+        ok = present[:, rank] & (others >= 2) & (labelled >= 0) & last[rows, main]
+        ok &= both[rows, np.maximum(labelled, 0)] & both[rows, distractor]
         if not ok.any():
             continue
         for name, agent in (("labelled", labelled), ("distractor", distractor)):
             moved = predict(*swap_history(states, valid, np.where(ok, agent, -1), num_observed))
-            dist = np.linalg.norm(moved[:, :, main] - base[:, :, main], axis=-1)  # (n, T_pred)
+            dist = np.linalg.norm(moved[rows, :, main] - base[rows, :, main], axis=-1)  # (n, P)
             shifts[name].extend(dist[ok].mean(axis=1).tolist())
     if not shifts["labelled"]:
         return none

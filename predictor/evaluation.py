@@ -23,7 +23,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from predictor.baselines import BASELINES, RidgeBaseline, RidgeConfig, constant_velocity
+from predictor.baselines import (
+    BASELINES,
+    RidgeBaseline,
+    RidgeConfig,
+    constant_velocity,
+    ridge_states,
+)
 from predictor.config import ModelConfig, model_config_from_dict
 from predictor.data import Batch, TrajectoryDataset
 from predictor.diagnostics import counterfactual_shift, error_curves, one_step_errors
@@ -133,9 +139,19 @@ def fit_baseline(
         ), {}
     if fit is None or fit.n == 0:
         raise EvaluationError(f"the {name} baseline needs training scenes to fit on")
+    config = RidgeConfig.named(name)
+    if config.neighbours == "labelled" and not meta.has("attention"):
+        raise EvaluationError(
+            f"the {name} baseline reads attention labels, which the {meta.scenario} data lacks"
+        )
     try:
-        ridge = RidgeBaseline(RidgeConfig.named(name)).fit(
-            fit.states, fit.valid, fit.attention, fit.roles, meta.num_observed, meta.dt
+        ridge = RidgeBaseline(config).fit(
+            ridge_states(fit.states, meta.state_names),
+            fit.valid,
+            fit.attention,
+            fit.roles,
+            meta.num_observed,
+            meta.dt,
         )
     except ValueError as err:
         raise EvaluationError(f"cannot fit the {name} baseline: {err}") from None
@@ -144,7 +160,9 @@ def fit_baseline(
         "history_steps": ridge.history,
         "alpha": {meta.role_names[role]: alpha for role, alpha in sorted(ridge.alpha.items())},
     }
-    return lambda data: ridge.predict(data.states, data.valid, data.attention, data.roles), details
+    return lambda data: ridge.predict(
+        ridge_states(data.states, meta.state_names), data.valid, data.attention, data.roles
+    ), details
 
 
 def score(predictions: Predictions) -> dict:
@@ -157,6 +175,7 @@ def score(predictions: Predictions) -> dict:
         prediction_mask(p.valid, p.num_observed),
         p.case,
         p.case_names,
+        p.focal,
     )
     result["attention_accuracy"] = attention_accuracy(
         p.attention, p.attention_label, p.interaction, p.valid, p.num_observed, p.case, p.case_names
@@ -254,6 +273,11 @@ def evaluate_run(
     model, stored = load_model(path)
     dataset = _load_split(data_path, split)
     check_data_matches(stored, dataset.meta, path, data_path)
+    if model.config.attention_mode == "oracle" and not dataset.meta.has("attention"):
+        raise EvaluationError(
+            f"{path} uses the oracle attention (variant correct), which reads attention labels; "
+            f"{data_path} records none"
+        )
     trained_roles = tuple(stored["data"].get("role_names", ()))
     if model.config.num_roles > 0 and trained_roles != tuple(dataset.meta.role_names):
         raise EvaluationError(
@@ -373,8 +397,8 @@ def _common_diagnostics(dataset: TrajectoryDataset, pred_mean: np.ndarray, predi
     data, num_observed = dataset.data, dataset.meta.num_observed
     true = data.states[:, num_observed:, :, :2]
     return {
-        "error_curve": error_curves(pred_mean, true, data.valid, num_observed),
+        "error_curve": error_curves(pred_mean, true, data.valid, num_observed, data.focal),
         "counterfactual": counterfactual_shift(
-            predict, data.states, data.valid, data.attention, num_observed
+            predict, data.states, data.valid, data.attention, num_observed, data.focal
         ),
     }

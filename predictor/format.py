@@ -1,10 +1,20 @@
-"""Trajectory dataset format, schema v1: reader, writer and validation (h5py + numpy only).
+"""Trajectory dataset format, schema v2 (reads v1 too): reader, writer and validation.
 
-The written contract is docs/dataset_format.md. One HDF5 file holds one scenario, split into
-`train`, `val` and `test`; each split is a `TrajectorySet` of time-major arrays `(n, T, N, F)`.
-Everything that reads or writes trajectories goes through this module, so any data source that
-can fill a `TrajectorySet` can feed the predictor. Every read validates and raises `FormatError`
-with one line naming the file and the problem.
+The written contract is docs/dataset_format.md. One HDF5 file holds one scenario (or one real
+data set), split into `train`, `val` and `test`; each split is a `TrajectorySet` of time-major
+arrays `(n, T, N, F)`. Everything that reads or writes trajectories goes through this module, so
+any data source that can fill a `TrajectorySet` can feed the predictor. Every read validates and
+raises `FormatError` with one line naming the file and the problem. h5py and numpy only.
+
+Schema 2 requires only positions (`x`, `y` as the first state channels), validity and the
+per-window `focal` mask (the agents that are scored and select checkpoints). The other datasets
+(`OPTIONAL_FIELDS`) are optional: `DatasetMeta.recorded` names those a file holds, and in memory
+an absent one is filled with its neutral value (`NEUTRAL_VALUES`: no action channels' values,
+no attention label, no interaction period, case 0, seed -1, role 0), so every consumer sees the
+same arrays whatever the source recorded. Code that needs real labels or states checks
+`DatasetMeta.recorded` / `DatasetMeta.state_names` and fails with one line where they are absent.
+A schema-1 file reads as schema 2 with everything recorded and the first two agent slots focal
+(`legacy_focal`), which is what the metrics of schema 1 scored.
 """
 
 from __future__ import annotations
@@ -23,23 +33,39 @@ import numpy as np
 from predictor import __version__
 
 FORMAT_NAME = "smooth-attention-trajectories"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # what the writer writes
+SUPPORTED_VERSIONS = (1, 2)  # what the reader reads
 SPLITS = ("train", "val", "test")
-STATE_NAMES = ("x", "y", "heading", "speed")
-ACTION_NAMES = ("steering", "acceleration")
+STATE_NAMES = ("x", "y", "heading", "speed")  # the synthetic scenarios' (and schema 1's) states
+ACTION_NAMES = ("steering", "acceleration")  # the synthetic scenarios' (and schema 1's) actions
+REQUIRED_STATES = ("x", "y")  # the first state channels of every file [m]
+LEGACY_FOCAL_AGENTS = 2  # schema 1: the first two agent slots are the scored (main) agents
 
-# Per-split datasets: name -> (dtype, shape with "n", "T", "N" placeholders).
+# Per-split datasets: name -> (dtype, shape with "n", "T", "N", "C" (state channels) and "A"
+# (action channels) placeholders), in contract order.
 _FIELDS: dict[str, tuple[np.dtype, tuple[str | int, ...]]] = {
-    "states": (np.dtype(np.float32), ("n", "T", "N", len(STATE_NAMES))),
-    "actions": (np.dtype(np.float32), ("n", "T", "N", len(ACTION_NAMES))),
+    "states": (np.dtype(np.float32), ("n", "T", "N", "C")),
+    "actions": (np.dtype(np.float32), ("n", "T", "N", "A")),
     "valid": (np.dtype(np.bool_), ("n", "T", "N")),
+    "focal": (np.dtype(np.bool_), ("n", "N")),
     "attention": (np.dtype(np.int16), ("n", "T", "N")),
     "interaction": (np.dtype(np.bool_), ("n", "T")),
     "case": (np.dtype(np.int8), ("n",)),
     "seed": (np.dtype(np.int64), ("n",)),
     "roles": (np.dtype(np.int8), ("n", "N")),
 }
-_ROOT_ATTRS = (
+# Optional datasets (schema 2) and the value an absent one is filled with in memory.
+NEUTRAL_VALUES: dict[str, int | bool] = {
+    "actions": 0,
+    "attention": -1,
+    "interaction": False,
+    "case": 0,
+    "seed": -1,
+    "roles": 0,
+}
+OPTIONAL_FIELDS = tuple(NEUTRAL_VALUES)
+_AGENT_AXIS = {"states": 2, "actions": 2, "valid": 2, "focal": 1, "attention": 2, "roles": 1}
+_ROOT_ATTRS_V1 = (
     "format",
     "schema_version",
     "scenario",
@@ -54,6 +80,7 @@ _ROOT_ATTRS = (
     "config",
     "package_version",
 )
+_ROOT_ATTRS = (*_ROOT_ATTRS_V1, "recorded")  # schema 2
 
 
 class FormatError(ValueError):
@@ -79,11 +106,25 @@ class DatasetMeta:
     role_names: tuple[str, ...]  # `roles` arrays index into this
     config: dict = field(default_factory=dict)  # configuration that produced the file (JSON)
     package_version: str = __version__  # version of the package that wrote the file
-    schema_version: int = SCHEMA_VERSION
+    schema_version: int = SCHEMA_VERSION  # of the file read (a writer writes SCHEMA_VERSION)
+    # names of the state channels, x and y first; default: the synthetic scenarios' four
+    state_names: tuple[str, ...] = STATE_NAMES
+    # names of the action channels (may be none); default: the synthetic scenarios' two
+    action_names: tuple[str, ...] = ACTION_NAMES
+    # optional datasets (OPTIONAL_FIELDS) the file holds; the others read as NEUTRAL_VALUES
+    recorded: tuple[str, ...] = OPTIONAL_FIELDS
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "case_names", tuple(self.case_names))
-        object.__setattr__(self, "role_names", tuple(self.role_names))
+        for name in ("case_names", "role_names", "state_names", "action_names", "recorded"):
+            object.__setattr__(self, name, tuple(getattr(self, name)))
+
+    def has(self, name: str) -> bool:
+        """Whether the optional dataset `name` (one of OPTIONAL_FIELDS) holds recorded data."""
+        return name in self.recorded
+
+    def state_index(self, name: str) -> int | None:
+        """Channel of state `name` in `states`, None if the file has no such channel."""
+        return self.state_names.index(name) if name in self.state_names else None
 
     @property
     def num_steps(self) -> int:
@@ -92,11 +133,11 @@ class DatasetMeta:
 
     def validate(self, source: str = "") -> None:
         """Raise FormatError if a field is out of its documented range."""
-        if self.schema_version != SCHEMA_VERSION:
+        if self.schema_version not in SUPPORTED_VERSIONS:
             raise _fail(
                 source,
                 f"schema_version is {self.schema_version!r}, this reader "
-                f"supports only {SCHEMA_VERSION}",
+                f"supports {_versions_text()}",
             )
         if not isinstance(self.scenario, str) or not self.scenario:
             raise _fail(source, "scenario must be a non-empty string")
@@ -120,24 +161,66 @@ class DatasetMeta:
             raise _fail(
                 source, f"major_case {self.major_case!r} is not one of {list(self.case_names)}"
             )
+        self._validate_channels(source)
         try:
             json.dumps(self.config, allow_nan=False)
         except (TypeError, ValueError) as err:
             raise _fail(source, f"config is not JSON-serialisable: {err}") from None
 
+    def _validate_channels(self, source: str) -> None:
+        for name in ("state_names", "action_names", "recorded"):
+            names = getattr(self, name)
+            if not all(isinstance(s, str) and s for s in names):
+                raise _fail(source, f"{name} must be a list of non-empty strings")
+            if len(set(names)) != len(names):
+                raise _fail(source, f"{name} has duplicates: {list(names)}")
+        if self.state_names[:2] != REQUIRED_STATES:
+            raise _fail(
+                source,
+                f"state_names must start with {list(REQUIRED_STATES)}, "
+                f"got {list(self.state_names)}",
+            )
+        unknown = [name for name in self.recorded if name not in OPTIONAL_FIELDS]
+        if unknown:
+            raise _fail(
+                source, f"recorded names unknown datasets {unknown}; optional are {OPTIONAL_FIELDS}"
+            )
+
+
+def _versions_text() -> str:
+    return "schema versions " + ", ".join(str(v) for v in SUPPORTED_VERSIONS)
+
+
+def legacy_focal(n: int, num_agents: int) -> np.ndarray:
+    """(n, N) focal mask of a schema-1 file: the first LEGACY_FOCAL_AGENTS slots."""
+    focal = np.zeros((n, num_agents), dtype=bool)
+    focal[:, :LEGACY_FOCAL_AGENTS] = True
+    return focal
+
 
 @dataclass(frozen=True, eq=False)
 class TrajectorySet:
-    """One split: n trajectories of T steps with N agent slots (shapes as in the contract)."""
+    """One split: n trajectories of T steps with N agent slots (shapes as in the contract).
 
-    states: np.ndarray  # (n, T, N, 4) float32: x [m], y [m], heading [rad], speed [m/s]
-    actions: np.ndarray  # (n, T, N, 2) float32: steering [rad], acceleration [m/s^2]
+    Optional datasets a source does not record hold their NEUTRAL_VALUES. `focal` left out
+    (None) is the schema-1 rule, the first two slots (`legacy_focal`).
+    """
+
+    states: np.ndarray  # (n, T, N, C) float32: DatasetMeta.state_names, x [m], y [m] first
+    actions: np.ndarray  # (n, T, N, A) float32: DatasetMeta.action_names
     valid: np.ndarray  # (n, T, N) bool: agent present
     attention: np.ndarray  # (n, T, N) int16: index of the attended agent, -1 for none
     interaction: np.ndarray  # (n, T) bool: inside the interaction period
     case: np.ndarray  # (n,) int8: index into case_names
     seed: np.ndarray  # (n,) int64: generating seed, -1 for foreign data
     roles: np.ndarray  # (n, N) int8: index into role_names
+    focal: np.ndarray | None = None  # (n, N) bool: agents scored and selecting checkpoints
+
+    def __post_init__(self) -> None:
+        if self.focal is None and isinstance(self.states, np.ndarray) and self.states.ndim >= 3:
+            object.__setattr__(
+                self, "focal", legacy_focal(*self.states.shape[:1], self.states.shape[2])
+            )
 
     @property
     def n(self) -> int:
@@ -161,17 +244,16 @@ class TrajectorySet:
     def validate(self, meta: DatasetMeta | None = None, source: str = "") -> None:
         """Raise FormatError unless dtypes, shapes and values follow the contract.
 
-        With `meta`, also checks T against num_observed + num_predicted and the case and role
-        indices against the names.
+        With `meta`, also checks T against num_observed + num_predicted, the state and action
+        channels against their names, the case and role indices against the names, and that
+        the optional datasets `meta` does not list as recorded hold their neutral values.
         """
         self._check_shapes(source)
-        n, steps, agents = self.n, self.num_steps, self.num_agents
-        if meta is not None and steps != meta.num_steps:
-            raise _fail(
-                source,
-                f"T={steps} but num_observed + num_predicted = "
-                f"{meta.num_observed} + {meta.num_predicted} = {meta.num_steps}",
-            )
+        n, agents = self.n, self.num_agents
+        if self.states.shape[3] < len(REQUIRED_STATES):
+            raise _fail(source, f"states need at least the channels {list(REQUIRED_STATES)}")
+        if meta is not None:
+            self._check_meta(meta, source)
         if n == 0:
             return
         if not np.isfinite(self.states[self.valid]).all():
@@ -194,6 +276,27 @@ class TrajectorySet:
             if limit is not None and values.size and values.max() >= limit:
                 raise _fail(
                     source, f"{name} index {int(values.max())} out of range for {limit} names"
+                )
+
+    def _check_meta(self, meta: DatasetMeta, source: str) -> None:
+        if self.num_steps != meta.num_steps:
+            raise _fail(
+                source,
+                f"T={self.num_steps} but num_observed + num_predicted = "
+                f"{meta.num_observed} + {meta.num_predicted} = {meta.num_steps}",
+            )
+        for name, names in (("states", meta.state_names), ("actions", meta.action_names)):
+            if getattr(self, name).shape[3] != len(names):
+                raise _fail(
+                    source,
+                    f"{name} has {getattr(self, name).shape[3]} channels but "
+                    f"{name[:-1]}_names lists {len(names)}",
+                )
+        for name, neutral in NEUTRAL_VALUES.items():
+            if not meta.has(name) and (getattr(self, name) != neutral).any():
+                raise _fail(
+                    source,
+                    f"{name} holds data but the metadata does not list it as recorded",
                 )
 
     def _check_shapes(self, source: str) -> None:
@@ -239,8 +342,8 @@ class TrajectorySet:
     def concatenate(sets: Sequence[TrajectorySet]) -> TrajectorySet:
         """Join sets along the trajectory axis; a smaller agent axis is padded.
 
-        Padded agent slots are invalid at every step, zero-filled, attend to nobody (-1) and have
-        role 0 (meaningless, since they never appear).
+        Padded agent slots are invalid at every step, zero-filled, not focal, attend to nobody
+        (-1) and have role 0 (meaningless, since they never appear).
         """
         if not sets:
             raise ValueError("concatenate needs at least one TrajectorySet")
@@ -248,17 +351,20 @@ class TrajectorySet:
         if len(steps) != 1:
             raise FormatError(f"cannot concatenate sets with different T: {sorted(steps)}")
         agents = max(s.num_agents for s in sets)
-        padded = [s._pad_agents(agents).arrays() for s in sets]
+        padded = [s.pad_agents(agents).arrays() for s in sets]
         return TrajectorySet(**{k: np.concatenate([p[k] for p in padded]) for k in _FIELDS})
 
-    def _pad_agents(self, num_agents: int) -> TrajectorySet:
+    def pad_agents(self, num_agents: int) -> TrajectorySet:
+        """The set with its agent axis padded to `num_agents` slots (as in `concatenate`)."""
         extra = num_agents - self.num_agents
+        if extra < 0:
+            raise ValueError(f"cannot pad {self.num_agents} agent slots down to {num_agents}")
         if extra == 0:
             return self
         fill = {"attention": -1}
         out = {}
         for name, array in self.arrays().items():
-            axis = {"states": 2, "actions": 2, "valid": 2, "attention": 2, "roles": 1}.get(name)
+            axis = _AGENT_AXIS.get(name)
             if axis is None:
                 out[name] = array
                 continue
@@ -268,9 +374,14 @@ class TrajectorySet:
         return TrajectorySet(**out)
 
     @staticmethod
-    def empty(num_steps: int, num_agents: int) -> TrajectorySet:
-        """A set of zero trajectories with the given T and N."""
-        sizes = {"n": 0, "T": num_steps, "N": num_agents}
+    def empty(
+        num_steps: int,
+        num_agents: int,
+        num_states: int = len(STATE_NAMES),
+        num_actions: int = len(ACTION_NAMES),
+    ) -> TrajectorySet:
+        """A set of zero trajectories with the given T, N and state and action channels."""
+        sizes = {"n": 0, "T": num_steps, "N": num_agents, "C": num_states, "A": num_actions}
         return TrajectorySet(
             **{
                 name: np.zeros(tuple(sizes.get(s, s) for s in shape), dtype=dtype)
@@ -309,7 +420,10 @@ def write_dataset(
     if not splits:
         raise FormatError(f"no splits given; expected some of {list(SPLITS)}")
     agents = next(iter(splits.values())).num_agents
-    full = {s: splits.get(s, TrajectorySet.empty(meta.num_steps, agents)) for s in SPLITS}
+    channels = len(meta.state_names), len(meta.action_names)
+    full = {
+        s: splits.get(s, TrajectorySet.empty(meta.num_steps, agents, *channels)) for s in SPLITS
+    }
     for name, data in full.items():
         data.validate(meta, source=f"split {name!r}")
     if target.exists() and not overwrite:
@@ -321,7 +435,7 @@ def write_dataset(
         with h5py.File(temp_name, "x") as file:  # "x": never clobber; permissions from umask
             _write_root_attrs(file, meta)
             for name, data in full.items():
-                _write_split(file.create_group(name), data)
+                _write_split(file.create_group(name), data, meta.recorded)
         os.replace(temp_name, target)
     except BaseException:
         Path(temp_name).unlink(missing_ok=True)
@@ -332,7 +446,7 @@ def write_dataset(
 def _write_root_attrs(file: h5py.File, meta: DatasetMeta) -> None:
     attrs = file.attrs
     attrs["format"] = FORMAT_NAME
-    attrs["schema_version"] = np.int64(meta.schema_version)
+    attrs["schema_version"] = np.int64(SCHEMA_VERSION)
     attrs["scenario"] = meta.scenario
     attrs["dt"] = np.float64(meta.dt)
     attrs["num_observed"] = np.int64(meta.num_observed)
@@ -340,15 +454,18 @@ def _write_root_attrs(file: h5py.File, meta: DatasetMeta) -> None:
     attrs["case_names"] = json.dumps(list(meta.case_names))
     attrs["major_case"] = meta.major_case
     attrs["role_names"] = json.dumps(list(meta.role_names))
-    attrs["state_names"] = json.dumps(list(STATE_NAMES))
-    attrs["action_names"] = json.dumps(list(ACTION_NAMES))
+    attrs["state_names"] = json.dumps(list(meta.state_names))
+    attrs["action_names"] = json.dumps(list(meta.action_names))
+    attrs["recorded"] = json.dumps(list(meta.recorded))
     attrs["config"] = json.dumps(meta.config, sort_keys=True, allow_nan=False)
     attrs["package_version"] = meta.package_version
 
 
-def _write_split(group: h5py.Group, data: TrajectorySet) -> None:
+def _write_split(group: h5py.Group, data: TrajectorySet, recorded: tuple[str, ...]) -> None:
     group.attrs["count"] = np.int64(data.n)
     for name, array in data.arrays().items():
+        if name in NEUTRAL_VALUES and name not in recorded:
+            continue
         if data.n > 0:  # one trajectory per chunk, gzip
             group.create_dataset(
                 name,
@@ -393,6 +510,14 @@ class _Reader:
 
     def meta(self) -> DatasetMeta:
         attrs = self._root_attrs()
+        version = self._number(attrs, "schema_version", int)
+        if version == 1:  # fixed channels, everything recorded
+            for name, expected in (("state_names", STATE_NAMES), ("action_names", ACTION_NAMES)):
+                if tuple(self._json(attrs, name, list)) != expected:
+                    raise _fail(self.source, f"{name} must be {list(expected)}")
+            recorded = OPTIONAL_FIELDS
+        else:
+            recorded = tuple(self._json(attrs, "recorded", list))
         meta = DatasetMeta(
             scenario=self._text(attrs, "scenario"),
             dt=self._number(attrs, "dt", float),
@@ -403,11 +528,11 @@ class _Reader:
             role_names=tuple(self._json(attrs, "role_names", list)),
             config=self._json(attrs, "config", dict),
             package_version=self._text(attrs, "package_version"),
-            schema_version=self._number(attrs, "schema_version", int),
+            schema_version=version,
+            state_names=tuple(self._json(attrs, "state_names", list)),
+            action_names=tuple(self._json(attrs, "action_names", list)),
+            recorded=recorded,
         )
-        for name, expected in (("state_names", STATE_NAMES), ("action_names", ACTION_NAMES)):
-            if tuple(self._json(attrs, name, list)) != expected:
-                raise _fail(self.source, f"{name} must be {list(expected)}")
         meta.validate(self.source)
         return meta
 
@@ -423,13 +548,13 @@ class _Reader:
         if "schema_version" not in attrs:
             raise _fail(self.source, "missing root attribute 'schema_version'")
         version = self._number(attrs, "schema_version", int)
-        if version != SCHEMA_VERSION:
+        if version not in SUPPORTED_VERSIONS:
             raise _fail(
                 self.source,
-                f"schema_version {version} is not supported "
-                f"(this reader supports {SCHEMA_VERSION})",
+                f"schema_version {version} is not supported (this reader reads {_versions_text()})",
             )
-        missing = [name for name in _ROOT_ATTRS if name not in attrs]
+        required = _ROOT_ATTRS_V1 if version == 1 else _ROOT_ATTRS
+        missing = [name for name in required if name not in attrs]
         if missing:
             raise _fail(self.source, f"missing root attribute(s) {missing}")
         return attrs
@@ -438,27 +563,51 @@ class _Reader:
         if name not in SPLITS:
             raise _fail(self.source, f"unknown split {name!r}; expected one of {list(SPLITS)}")
         where = f"{self.source}: split {name!r}"
-        arrays = {}
         try:
             group = self.file.get(name)
             if not isinstance(group, h5py.Group):
                 raise _fail(self.source, f"missing group {name!r}")
-            for field_name, (dtype, _shape) in _FIELDS.items():
-                dataset = group.get(field_name)
-                if not isinstance(dataset, h5py.Dataset):
-                    raise _fail(where, f"missing dataset {field_name!r}")
-                if dataset.dtype != dtype:  # check before loading: no silent casts
-                    raise _fail(where, f"{field_name} has dtype {dataset.dtype}, expected {dtype}")
-                arrays[field_name] = dataset[()]
+            arrays = self._datasets(group, meta, where)
             count = group.attrs.get("count")
         except OSError as err:
             raise _fail(where, f"corrupt or truncated data ({_short(err)})") from None
+        n, steps, agents = arrays["states"].shape[:3]
+        for field_name, neutral in NEUTRAL_VALUES.items():  # absent optional data: neutral
+            if field_name not in arrays:
+                dtype, shape = _FIELDS[field_name]
+                sizes = {"n": n, "T": steps, "N": agents, "A": len(meta.action_names)}
+                full = tuple(sizes.get(s, s) for s in shape)
+                arrays[field_name] = np.full(full, neutral, dtype=dtype)
+        if meta.schema_version == 1:
+            arrays["focal"] = legacy_focal(n, agents)
         data = TrajectorySet(**arrays)
         data.validate(meta, source=where)
         if not isinstance(count, (int, np.integer)) or int(count) != data.n:
             shown = count.item() if isinstance(count, np.generic) else count
             raise _fail(where, f"attribute count={shown!r} does not match {data.n} trajectories")
         return data
+
+    def _datasets(self, group: h5py.Group, meta: DatasetMeta, where: str) -> dict:
+        """The split's stored datasets (required ones and those `meta` lists as recorded)."""
+        stored = [f for f in _FIELDS if f not in NEUTRAL_VALUES or meta.has(f)]
+        if meta.schema_version == 1:
+            stored.remove("focal")
+        else:
+            extra = [f for f in OPTIONAL_FIELDS if f not in stored and f in group]
+            if extra:
+                raise _fail(where, f"holds {extra} that the root attribute 'recorded' leaves out")
+        arrays = {}
+        for field_name in stored:
+            dtype = _FIELDS[field_name][0]
+            dataset = group.get(field_name)
+            if not isinstance(dataset, h5py.Dataset):
+                raise _fail(where, f"missing dataset {field_name!r}")
+            if dataset.dtype != dtype:  # check before loading: no silent casts
+                raise _fail(where, f"{field_name} has dtype {dataset.dtype}, expected {dtype}")
+            if dataset.ndim != len(_FIELDS[field_name][1]):
+                raise _fail(where, f"{field_name} has shape {dataset.shape}")
+            arrays[field_name] = dataset[()]
+        return arrays
 
     def _text(self, attrs: dict, name: str) -> str:
         value = attrs[name]
@@ -527,11 +676,22 @@ def summarize(path: str | os.PathLike) -> str:
         f"roles: {', '.join(meta.role_names)}",
         f"cases:     {', '.join(cases)}"
         + (f" (major: {meta.major_case})" if meta.major_case else ""),
+        f"states:    {', '.join(meta.state_names)}; actions: "
+        f"{', '.join(meta.action_names) or 'none'}",
+        f"recorded:  {', '.join(meta.recorded) or 'none'} "
+        f"(of the optional {', '.join(OPTIONAL_FIELDS)})",
         "",
-        "split   " + "".join(f"{c:>10}" for c in [*cases, "total"]) + "   valid agents/step",
+        "split   "
+        + "".join(f"{c:>10}" for c in [*cases, "total"])
+        + "   valid agents/step   focal/window",
     ]
     for name, data in splits.items():
         counts = [int((data.case == i).sum()) for i in range(len(cases))] + [data.n]
         mean_valid = f"{data.valid.sum(axis=2).mean():.2f}" if data.n else "-"
-        lines.append(f"{name:<8}" + "".join(f"{c:>10}" for c in counts) + f"   {mean_valid:>18}")
+        mean_focal = f"{data.focal.sum(axis=1).mean():.2f}" if data.n else "-"
+        lines.append(
+            f"{name:<8}"
+            + "".join(f"{c:>10}" for c in counts)
+            + f"   {mean_valid:>17}   {mean_focal:>12}"
+        )
     return "\n".join(lines)

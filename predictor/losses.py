@@ -21,7 +21,6 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from predictor.metrics import MAIN_AGENTS
 from predictor.model import Gaussian2D, ModelOutput
 
 LOG_2PI = math.log(2.0 * math.pi)
@@ -82,8 +81,8 @@ def distance(target: Tensor, mean: Tensor) -> Tensor:
 def masked_sum(
     values: Tensor, mask: Tensor, agent_weight: Tensor | None = None
 ) -> tuple[Tensor, Tensor]:
-    """(sum of values where mask, number of such items); with `agent_weight` (N,) over the last
-    dim, each item counts with its agent's weight in both."""
+    """(sum of values where mask, number of such items); with `agent_weight` broadcasting over
+    values (e.g. (B, 1, N)), each item counts with its agent's weight in both."""
     weight = mask.to(values.dtype)
     if agent_weight is not None:
         weight = weight * agent_weight
@@ -94,13 +93,15 @@ def _mean(total: Tensor, count: Tensor) -> Tensor:
     return total / count.clamp(min=1).to(total.dtype)
 
 
-def main_agent_weights(num_agents: int, main_weight: float, like: Tensor) -> Tensor | None:
-    """(N,) item weights: `main_weight` for the main-agent slots, 1 for the others; None for 1."""
+def main_agent_weights(focal: Tensor | None, main_weight: float, like: Tensor) -> Tensor | None:
+    """(B, 1, N) item weights: `main_weight` for the focal agents (focal (B, N) bool), 1 for the
+    others; None for weight 1. ValueError if a weight is asked for without a focal mask."""
     if main_weight == 1.0:
         return None
-    weight = torch.ones(num_agents, dtype=like.dtype, device=like.device)
-    weight[:MAIN_AGENTS] = main_weight
-    return weight
+    if focal is None:
+        raise ValueError("main_weight != 1 needs the focal mask of the batch")
+    one = torch.ones((), dtype=like.dtype, device=like.device)
+    return torch.where(focal, one * main_weight, one).unsqueeze(1)  # (B, 1, N)
 
 
 @dataclass(frozen=True)
@@ -118,22 +119,28 @@ class LossWeights:
     # step of a track has no velocity, so its prediction misses by a whole step (~2 m) and that
     # unlearnable error would dominate every other one-step error (~1-10 mm)
     needs_previous: bool = False
-    # weight of the main agents' agent-steps in the NLL, variance and displacement terms (the
-    # others count 1; each term stays a weighted mean): the metric and checkpoint choice score
-    # only the main agents, 2 of 22 cars in the synthetic scenarios
+    # weight of the focal (main) agents' agent-steps in the NLL, variance and displacement terms
+    # (the others count 1; each term stays a weighted mean): the metric and checkpoint choice
+    # score only the focal agents, 2 of 22 cars in the synthetic scenarios
     main_weight: float = 1.0
     # weight of the one-step displacement term `de` (mean_loss "displacement")
     one_step_weight: float = 1.0
 
 
 def compute_loss(
-    out: ModelOutput, positions: Tensor, valid: Tensor, num_observed: int, weights: LossWeights
+    out: ModelOutput,
+    positions: Tensor,
+    valid: Tensor,
+    num_observed: int,
+    weights: LossWeights,
+    focal: Tensor | None = None,
 ) -> tuple[Tensor, dict[str, float]]:
     """Total loss L = nll + nll_seq + beta1 (var + var_seq) + beta2 (tv + tv_seq) and its terms
     (with mean_loss "displacement", plus de and de_seq: the one-step and rollout means' mean
     displacement errors [m], while the NLL terms see detached means).
 
-    positions (B, T, N, 2) [m], valid (B, T, N). One-step terms cover t = 1 .. T-1 where the agent
+    positions (B, T, N, 2) [m], valid (B, T, N); focal (B, N), needed for a main_weight other
+    than 1 (`main_agent_weights`). One-step terms cover t = 1 .. T-1 where the agent
     is present at t and t-1; rollout terms cover t = T_obs .. T-1 where the agent is present at t
     and was rolled out (present at T_obs-1).
     """
@@ -143,7 +150,7 @@ def compute_loss(
     if weights.needs_previous:
         mask = mask & torch.cat([torch.zeros_like(valid[:, :1]), valid[:, :-2]], 1)
     one = out.one_step
-    w = main_agent_weights(positions.shape[2], weights.main_weight, positions)
+    w = main_agent_weights(focal, weights.main_weight, positions)
     displacement = weights.mean_loss == "displacement"
     one_mean = one.mean.detach() if displacement else one.mean
     terms["nll"] = _mean(*masked_sum(gaussian_nll(target, one_mean, one.tril), mask, w))

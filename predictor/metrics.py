@@ -7,9 +7,13 @@ Conventions (shared by every predictor, the constant-velocity baseline included)
 - ADE [m] is the mean Euclidean error over all counted (scene, step, agent) triples of a group,
   pooled (not a mean of per-scene means). FDE [m] is the mean error at the final step T-1 over the
   agents counted there.
-- Two agent groups are reported: `all_agents` and `main_agents` (the first two agent slots, the
-  interacting cars of the synthetic scenarios). The headline is `main_agents`: the distractors
-  drive at constant speed and would otherwise dominate the average of 22 agents.
+- Two agent groups are reported: `all_agents` and `main_agents`, the agents the data marks as
+  focal in each scene (`focal`, (n, N): the two interacting cars of the synthetic scenarios,
+  the fully observed pedestrians of ETH/UCY; see docs/dataset_format.md). The headline is
+  `main_agents`: the synthetic distractors drive at constant speed and would otherwise dominate
+  the average of 22 agents. The focal agents are gathered scene by scene into a compact
+  (n, K) agent axis (`focal_slots`), so where they are the first slots of every scene the sums
+  run over exactly the arrays, in the same order, that slicing those slots gives.
 - Attention accuracy: over (step t, agent i) pairs with T_obs <= t <= T-2 (the fed-back steps
   whose attention theta^t is computed from predicted states), t inside the interaction period,
   i predicted and present at t and labelled (label >= 0): the share where the labelled agent's
@@ -26,17 +30,39 @@ from collections.abc import Sequence
 
 import numpy as np
 
-MAIN_AGENTS = 2  # the first agent slots are the main (interacting) cars
-
 
 def prediction_mask(valid: np.ndarray, num_observed: int) -> np.ndarray:
     """(n, T, N) validity -> (n, T_pred, N): predicted (present at T_obs-1) and present at t."""
     return valid[:, num_observed:] & valid[:, num_observed - 1 : num_observed]
 
 
-def _errors(pred: np.ndarray, true: np.ndarray, mask: np.ndarray, agents: slice) -> dict:
-    dist = np.linalg.norm(pred[:, :, agents] - true[:, :, agents], axis=-1)  # (n, T_pred, A)
-    keep = mask[:, :, agents]  # (n, T_pred, A)
+def focal_slots(focal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n, N) focal mask -> (slots (n, K), present (n, K)): each scene's focal agent slots in
+    slot order, padded to K = the largest focal count with slot 0 marked not present."""
+    focal = np.asarray(focal, dtype=bool)
+    count = int(focal.sum(axis=1).max()) if focal.size else 0
+    slots = np.argsort(~focal, axis=1, kind="stable")[:, :count]  # (n, K) focal first
+    return slots, np.take_along_axis(focal, slots, axis=1)
+
+
+def gather_agents(array: np.ndarray, slots: np.ndarray) -> np.ndarray:
+    """(n, T, N, ...) array -> (n, T, K, ...): the agents `slots` (n, K) of each scene."""
+    index = slots.reshape(slots.shape[0], 1, slots.shape[1], *([1] * (array.ndim - 3)))
+    return np.take_along_axis(array, index, axis=2)
+
+
+def focal_view(
+    pred: np.ndarray, true: np.ndarray, mask: np.ndarray, focal: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(pred, true, mask) restricted to the focal agents: (n, T_pred, K, 2) twice and
+    (n, T_pred, K), padding slots masked out."""
+    slots, present = focal_slots(focal)
+    keep = gather_agents(mask, slots) & present[:, None, :]
+    return gather_agents(pred, slots), gather_agents(true, slots), keep
+
+
+def _errors(pred: np.ndarray, true: np.ndarray, keep: np.ndarray) -> dict:
+    dist = np.linalg.norm(pred - true, axis=-1)  # (n, T_pred, A)
     dist = np.where(keep, dist, 0.0)
     return {
         "ade_sum": dist.sum(axis=(1, 2)),  # (n,)
@@ -67,18 +93,20 @@ def displacement_metrics(
     mask: np.ndarray,
     case: np.ndarray,
     case_names: Sequence[str],
+    focal: np.ndarray,
 ) -> dict:
     """ADE/FDE [m] per agent group, overall and per case.
 
-    pred, true (n, T_pred, N, 2) [m]; mask (n, T_pred, N) bool; case (n,) indices into case_names.
-    Returns {group: {"overall": {...}, "cases": {name: {...}}}} with keys ade, fde, count,
-    final_count, scenes (ade/fde None where nothing counts).
+    pred, true (n, T_pred, N, 2) [m]; mask (n, T_pred, N) bool; case (n,) indices into case_names;
+    focal (n, N) bool, the `main_agents` group. Returns {group: {"overall": {...}, "cases":
+    {name: {...}}}} with keys ade, fde, count, final_count, scenes (ade/fde None where nothing
+    counts).
     """
-    groups = {"all_agents": slice(None), "main_agents": slice(0, MAIN_AGENTS)}
+    groups = {"all_agents": (pred, true, mask), "main_agents": focal_view(pred, true, mask, focal)}
     case = np.asarray(case)
     result = {}
-    for group, agents in groups.items():
-        parts = _errors(pred, true, mask, agents)
+    for group, arrays in groups.items():
+        parts = _errors(*arrays)
         result[group] = {
             "overall": _pool(parts, np.ones(len(case), dtype=bool)),
             "cases": {name: _pool(parts, case == k) for k, name in enumerate(case_names)},

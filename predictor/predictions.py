@@ -16,10 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from predictor.format import DatasetMeta, TrajectorySet
+from predictor.format import DatasetMeta, TrajectorySet, legacy_focal
 
 PREDICTIONS_FORMAT = "smooth-attention-predictions"
-PREDICTIONS_VERSION = 2  # 1: the untagged layout written before the format tag existed
+PREDICTIONS_VERSION = 3  # 3 adds `focal`; 2 (read: the first two slots focal) had none
+READABLE_VERSIONS = (2, 3)  # 1: the untagged layout written before the format tag existed
 
 _SCALARS = ("predictor", "scenario", "split", "num_observed", "dt")
 _NAMES = ("case_names", "role_names")
@@ -28,6 +29,7 @@ _ARRAYS = {  # field -> (shape in terms of n, T, P = T_pred, N; dtype in the fil
     "pred_mean": (("n", "P", "N", 2), np.float32),
     "true_xy": (("n", "T", "N", 2), np.float32),
     "valid": (("n", "T", "N"), np.bool_),
+    "focal": (("n", "N"), np.bool_),
     "case": (("n",), np.int64),
     "roles": (("n", "N"), np.int64),
     "attention": (("n", "T-1", "N", "N"), np.float32),
@@ -59,6 +61,7 @@ class Predictions:
     pred_mean: np.ndarray  # (n, P, N, 2) predicted mean positions [m]
     true_xy: np.ndarray  # (n, T, N, 2) true positions [m]
     valid: np.ndarray  # (n, T, N) agent present
+    focal: np.ndarray  # (n, N) agents scored as the "main_agents" group
     case: np.ndarray  # (n,) index into case_names
     roles: np.ndarray  # (n, N) index into role_names
     attention: np.ndarray  # (n, T-1, N, N) theta[t, i, j], computed at t; NaN if none
@@ -102,6 +105,7 @@ class Predictions:
             pred_mean=pred_mean,
             true_xy=data.states[..., :2],
             valid=data.valid,
+            focal=data.focal,
             case=data.case,
             roles=data.roles,
             attention=attention,
@@ -172,7 +176,9 @@ def load_predictions(path: str | os.PathLike) -> Predictions:
             arrays = {key: npz[key] for key in npz.files}
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
         raise PredictionsError(f"{path}: not a readable .npz file ({err})") from None
-    _check_version(path, arrays)
+    version = _check_version(path, arrays)
+    if version == 2 and "true_xy" in arrays and np.ndim(arrays["true_xy"]) == 4:
+        arrays["focal"] = legacy_focal(arrays["true_xy"].shape[0], arrays["true_xy"].shape[2])
     missing = sorted((set(_SCALARS) | set(_NAMES) | set(_ARRAYS)) - set(arrays))
     if missing:
         raise PredictionsError(f"{path}: missing arrays {missing}")
@@ -189,7 +195,7 @@ def load_predictions(path: str | os.PathLike) -> Predictions:
         raise PredictionsError(f"{path}: {err}") from None
 
 
-def _check_version(path: Path, arrays: dict[str, np.ndarray]) -> None:
+def _check_version(path: Path, arrays: dict[str, np.ndarray]) -> int:
     if "format" not in arrays:
         raise PredictionsError(
             f"{path}: not a {PREDICTIONS_FORMAT} file version {PREDICTIONS_VERSION} (no format "
@@ -199,8 +205,9 @@ def _check_version(path: Path, arrays: dict[str, np.ndarray]) -> None:
     if str(arrays["format"]) != PREDICTIONS_FORMAT:
         raise PredictionsError(f"{path}: not a {PREDICTIONS_FORMAT} file")
     version = arrays["version"].tolist() if "version" in arrays else None
-    if version != PREDICTIONS_VERSION:
+    if version not in READABLE_VERSIONS:
         raise PredictionsError(
             f"{path}: predictions file version {version} is not supported (this reader reads "
-            f"version {PREDICTIONS_VERSION})"
+            f"versions {', '.join(str(v) for v in READABLE_VERSIONS)})"
         )
+    return int(version)

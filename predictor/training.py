@@ -2,7 +2,8 @@
 
 A run directory holds `config.json` (model, training and data description), `metrics.jsonl`
 (one JSON object per epoch), `last.pt` (everything needed to resume, written after every epoch)
-and `best.pt` (the weights with the lowest validation ADE of the main agents, fed-back means).
+and `best.pt` (the weights with the lowest validation ADE of the main agents, i.e. the validation
+split's focal agents, fed-back means).
 
 Determinism: the seed fixes the initial weights (torch RNG), the batch order (the loader's own
 generator) and the rollout samples (torch RNG). `last.pt` stores the optimizer state, the epoch,
@@ -49,6 +50,7 @@ from predictor.evaluation import (
     read_checkpoint,
     score,
 )
+from predictor.format import DatasetMeta
 from predictor.losses import LossWeights, compute_loss
 from predictor.model import SmoothAttentionPredictor
 from predictor.predictions import Predictions
@@ -125,7 +127,9 @@ def train_step(
         roles=batch.roles,
         scenes=batch.index,  # training scenes: the cross-fitted highway maps
     )
-    loss, terms = compute_loss(out, batch.positions, batch.valid, num_observed, weights)
+    loss, terms = compute_loss(
+        out, batch.positions, batch.valid, num_observed, weights, batch.focal
+    )
     if not math.isfinite(terms["loss"]):
         raise FloatingPointError(f"non-finite loss {terms}")
     optimizer.zero_grad(set_to_none=True)
@@ -202,6 +206,16 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
     np.random.seed(seed % 2**32)
     random.seed(seed)
+
+
+def check_labels(model_cfg: ModelConfig, meta: DatasetMeta, data_path: str | os.PathLike) -> None:
+    """RunError if the model reads attention labels (the oracle `correct` variant) and the data
+    records none (real data usually has none: every agent would attend to nobody)."""
+    if model_cfg.attention_mode == "oracle" and not meta.has("attention"):
+        raise RunError(
+            f"{data_path}: the oracle attention (variant correct) reads attention labels, "
+            "which this file does not record"
+        )
 
 
 def describe_data(path: str, dataset: TrajectoryDataset, val_count: int) -> dict:
@@ -428,6 +442,7 @@ def train(
         model_cfg = resolve_roles(model_cfg, train_set.meta.role_names)
     except ValueError as err:
         raise RunError(f"{data_path}: {err}") from None
+    check_labels(model_cfg, train_set.meta, data_path)
     state = build_state(model_cfg, train_cfg, train_set)
     if resume:
         checkpoint = read_checkpoint(out / "last.pt")

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 
+import h5py
 import numpy as np
 import pytest
 
@@ -112,6 +113,16 @@ def write_small_dataset(
     }
     write_dataset(path, meta, splits)
     return meta, splits
+
+
+def downgrade_to_schema_1(path: Path) -> None:
+    """Turn a file written with every optional dataset recorded into the schema-1 layout (which
+    had no `focal` and no `recorded`), as files written before schema 2 are."""
+    with h5py.File(path, "r+") as file:
+        file.attrs["schema_version"] = np.int64(1)
+        del file.attrs["recorded"]
+        for split in SPLITS:
+            del file[split]["focal"]
 
 
 @pytest.fixture

@@ -45,6 +45,13 @@ def test_swap_history_copies_the_next_scenes_observed_slot_only():
     assert states[0, 0, 2, 0] == 4.0  # inputs are not modified
 
 
+def FOCAL_01(n: int, agents: int) -> np.ndarray:  # noqa: N802 - reads as a constant
+    """(n, N) focal mask of the synthetic scenarios: slots 0 and 1."""
+    focal = np.zeros((n, agents), dtype=bool)
+    focal[:, :2] = True
+    return focal
+
+
 def labelled_scenes(n: int = 4, steps: int = 6, agents: int = 5):
     rng = np.random.default_rng(0)
     states = rng.normal(size=(n, steps, agents, 4)) * 10
@@ -67,12 +74,30 @@ def test_counterfactual_of_a_predictor_reading_only_the_labelled_car():
         out[:, 0], out[:, 1] = last[:, 1], last[:, 0]
         return np.repeat(out[:, None], t_pred, axis=1)
 
-    result = counterfactual_shift(predict, states, valid, attention, num_observed)
+    result = counterfactual_shift(predict, states, valid, attention, num_observed, FOCAL_01(4, 5))
     last = states[:, num_observed - 1, :, :2]
     moved = np.linalg.norm(last - np.roll(last, -1, axis=0), axis=-1)  # (n, N)
     assert result["labelled_m"] == pytest.approx(np.mean([*moved[:, 1], *moved[:, 0]]))
     assert result["distractor_m"] == 0.0
     assert result["pairs"] == 8
+    # the focal mask, not the slot order, names the main agents: swap slots 1 and 3 everywhere
+    perm = [0, 3, 2, 1, 4]
+    relabel = np.argsort(perm)[np.maximum(attention[:, :, perm], 0)]
+    moved_focal = FOCAL_01(4, 5)[:, perm]
+
+    def predict_perm(s: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return predict(s[:, :, perm], v[:, :, perm])[:, :, perm]
+
+    again = counterfactual_shift(
+        predict_perm,
+        states[:, :, perm],
+        valid[:, :, perm],
+        np.where(attention[:, :, perm] >= 0, relabel, -1),
+        num_observed,
+        moved_focal,
+    )
+    assert again["labelled_m"] == pytest.approx(result["labelled_m"])
+    assert again["pairs"] == 8
 
 
 def test_counterfactual_counts_nothing_without_labels_or_other_scenes():
@@ -81,9 +106,10 @@ def test_counterfactual_counts_nothing_without_labels_or_other_scenes():
     def predict(s: np.ndarray, v: np.ndarray) -> np.ndarray:
         return np.repeat(s[:, 2:3, :, :2], 2, axis=1)
 
-    none = counterfactual_shift(predict, states, valid, np.full_like(attention, -1), 3)
+    focal = FOCAL_01(3, 5)
+    none = counterfactual_shift(predict, states, valid, np.full_like(attention, -1), 3, focal)
     assert none == {"labelled_m": None, "distractor_m": None, "pairs": 0}
-    single = counterfactual_shift(predict, states[:1], valid[:1], attention[:1], 3)
+    single = counterfactual_shift(predict, states[:1], valid[:1], attention[:1], 3, focal[:1])
     assert single["pairs"] == 0
 
 
@@ -101,6 +127,7 @@ def test_one_step_error_of_an_untrained_model_equals_constant_velocity():
         interaction=torch.zeros(3, 8, dtype=torch.bool),
         case=torch.zeros(3, dtype=torch.long),
         seed=torch.arange(3),
+        focal=torch.from_numpy(FOCAL_01(3, 4)),
     )
     model = SmoothAttentionPredictor(ModelConfig(embed_dim=4, edge_hidden=4, node_hidden=4))
     result = one_step_errors(model, batch, num_observed=3)

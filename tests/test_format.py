@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 from conftest import (
     assert_sets_equal,
+    downgrade_to_schema_1,
     make_meta,
     make_trajectory_set,
     tool_env,
@@ -20,7 +22,9 @@ from conftest import (
 
 import predictor.format as fmt
 from predictor.format import (
+    OPTIONAL_FIELDS,
     SPLITS,
+    DatasetMeta,
     FormatError,
     TrajectorySet,
     read_dataset,
@@ -62,9 +66,11 @@ def test_file_layout_follows_contract(tmp_path: Path) -> None:
     meta, splits = write_small_dataset(path, counts=(5, 0, 2))
     with h5py.File(path, "r") as file:
         assert file.attrs["format"] == "smooth-attention-trajectories"
-        assert int(file.attrs["schema_version"]) == 1
+        assert int(file.attrs["schema_version"]) == 2
         assert file.attrs["state_names"] == '["x", "y", "heading", "speed"]'
         assert file.attrs["action_names"] == '["steering", "acceleration"]'
+        assert json.loads(file.attrs["recorded"]) == list(OPTIONAL_FIELDS)
+        assert file["train/focal"].dtype == np.bool_ and file["train/focal"].shape == (5, 4)
         assert int(file["train"].attrs["count"]) == 5
         assert int(file["val"].attrs["count"]) == 0
         states = file["train/states"]
@@ -125,11 +131,11 @@ def test_interrupted_write_leaves_nothing_behind(
     real_write_split = fmt._write_split
     calls = []
 
-    def interrupted(group, data):  # writes the first split, then "Ctrl-C" on the second
+    def interrupted(group, data, *rest):  # writes the first split, then "Ctrl-C" on the second
         calls.append(group.name)
         if len(calls) == 2:
             raise KeyboardInterrupt
-        real_write_split(group, data)
+        real_write_split(group, data, *rest)
 
     monkeypatch.setattr(fmt, "_write_split", interrupted)
     meta = make_meta()
@@ -202,7 +208,7 @@ def _edit(path: Path, edit) -> None:
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
-        (lambda f: f.attrs.__setitem__("schema_version", 2), "schema_version 2 is not supported"),
+        (lambda f: f.attrs.__setitem__("schema_version", 3), "schema_version 3 is not supported"),
         (lambda f: f.attrs.__setitem__("format", "other"), "format is 'other'"),
         (lambda f: f.attrs.__delitem__("dt"), r"missing root attribute\(s\) \['dt'\]"),
         (lambda f: f.attrs.__setitem__("num_predicted", 3), "T=10 but num_observed"),
@@ -280,7 +286,7 @@ def test_validation_catches_bad_shapes_dtypes_and_indices() -> None:
     data = make_trajectory_set(3, num_steps=10, num_agents=4)
     meta = make_meta()
     bad = {
-        "actions has shape": _replace(data, actions=np.zeros((3, 10, 4, 3), np.float32)),
+        "actions has 3 channels": _replace(data, actions=np.zeros((3, 10, 4, 3), np.float32)),
         "valid has shape .* inconsistent with T=10": _replace(data, valid=data.valid[:, :9]),
         "roles has shape": _replace(data, roles=data.roles[:, None]),
         "seed has dtype int32": _replace(data, seed=data.seed.astype(np.int32)),
@@ -381,7 +387,7 @@ def test_inspect_tool_accepts_valid_file(dataset_file: Path) -> None:
     result = _inspect(dataset_file)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip().splitlines()[-1] == (
-        f"OK: {dataset_file} is a valid schema v1 dataset"
+        f"OK: {dataset_file} is a valid schema v2 dataset"
     )
     assert summarize(dataset_file) in result.stdout
 
@@ -407,3 +413,88 @@ def test_inspect_tool_usage_errors_exit_2(tmp_path: Path) -> None:
         assert result.returncode == 2
         assert "Traceback" not in result.stderr
         assert len(result.stderr.strip().splitlines()) == 1
+
+
+# ---------------------------------------------------------------------------------------------
+# Schema 2: optional data, focal mask; schema 1 still reads
+
+
+def test_schema_1_file_reads_with_the_first_two_slots_focal(tmp_path: Path) -> None:
+    path = tmp_path / "v1.h5"
+    meta, splits = write_small_dataset(path, counts=(4, 2, 3), num_agents=5)
+    downgrade_to_schema_1(path)
+    with h5py.File(path, "r") as file:  # really the schema-1 layout now
+        assert int(file.attrs["schema_version"]) == 1 and "focal" not in file["train"]
+    read_back_meta, read_back = read_dataset(path)
+    assert read_back_meta.schema_version == 1
+    assert read_back_meta.recorded == OPTIONAL_FIELDS
+    assert read_back_meta.state_names == ("x", "y", "heading", "speed")
+    for name in SPLITS:
+        assert_sets_equal(read_back[name], splits[name])  # every array, focal included
+        expected = np.zeros((splits[name].n, 5), bool)
+        expected[:, :2] = True
+        np.testing.assert_array_equal(read_back[name].focal, expected)
+
+
+def _positions_only_meta(**changes) -> DatasetMeta:
+    fields = {
+        "scenario": "walkers",
+        "dt": 0.4,
+        "num_observed": 2,
+        "num_predicted": 3,
+        "case_names": ("all",),
+        "major_case": "",
+        "role_names": ("pedestrian",),
+        "state_names": ("x", "y"),
+        "action_names": (),
+        "recorded": (),
+    }
+    return DatasetMeta(**{**fields, **changes})
+
+
+def _positions_only_set(n: int = 3, agents: int = 4) -> TrajectorySet:
+    rng = np.random.default_rng(3)
+    empty = TrajectorySet.empty(5, agents, num_states=2, num_actions=0)
+    arrays = {
+        name: np.zeros((n, *array.shape[1:]), array.dtype) for name, array in empty.arrays().items()
+    }
+    arrays["states"] = rng.normal(size=(n, 5, agents, 2)).astype(np.float32)
+    arrays["valid"][:] = True
+    arrays["attention"][:] = -1
+    arrays["seed"][:] = -1
+    arrays["focal"][:, [1, 3]] = True
+    return TrajectorySet(**arrays)
+
+
+def test_positions_only_file_stores_only_required_data_and_reads_neutral_values(
+    tmp_path: Path,
+) -> None:
+    meta, data = _positions_only_meta(), _positions_only_set()
+    path = write_dataset(tmp_path / "walk.h5", meta, {"train": data})
+    with h5py.File(path, "r") as file:
+        assert sorted(file["train"]) == ["focal", "states", "valid"]
+        assert json.loads(file.attrs["recorded"]) == []
+    read_back_meta, splits = read_dataset(path)
+    assert read_back_meta == meta and not read_back_meta.has("attention")
+    assert_sets_equal(splits["train"], data)
+    assert (splits["train"].attention == -1).all() and (splits["train"].seed == -1).all()
+    assert splits["train"].actions.shape == (3, 5, 4, 0)
+    assert "focal/window" in summarize(path)
+
+
+def test_schema_2_rejects_unlisted_data_and_bad_channels(tmp_path: Path) -> None:
+    data = _positions_only_set()
+    labelled = dataclasses.replace(data, attention=np.zeros_like(data.attention))
+    with pytest.raises(FormatError, match="attention holds data but the metadata does not list"):
+        write_dataset(tmp_path / "a.h5", _positions_only_meta(), {"train": labelled})
+    with pytest.raises(FormatError, match=r"state_names must start with \['x', 'y'\]"):
+        _positions_only_meta(state_names=("y", "x")).validate()
+    with pytest.raises(FormatError, match="recorded names unknown datasets"):
+        _positions_only_meta(recorded=("labels",)).validate()
+    with pytest.raises(FormatError, match="states has 2 channels but state_names lists 3"):
+        data.validate(_positions_only_meta(state_names=("x", "y", "heading")))
+    path = write_dataset(tmp_path / "b.h5", _positions_only_meta(), {"train": data})
+    _edit(path, lambda f: f["val"].create_dataset("roles", data=np.zeros((0, 4), np.int8)))
+    with pytest.raises(FormatError, match="split 'val': holds \\['roles'\\] that the root") as err:
+        read_dataset(path)
+    assert str(path) in _one_line(err)

@@ -22,7 +22,7 @@ from conftest import load_tool
 
 from pipeline import episode_runner, generation
 from pipeline.generation import GenerateConfig, default_output, generate_dataset, plan
-from predictor.format import read_dataset, read_meta
+from predictor.format import OPTIONAL_FIELDS, read_dataset, read_meta
 from scenarios import SCENARIOS
 from scenarios.rollout import rollout
 
@@ -175,6 +175,11 @@ def test_round_trip_file_contents(tmp_path):
     np.testing.assert_array_equal(splits["test"].states[index], episode.states.astype(np.float32))
     np.testing.assert_array_equal(splits["test"].attention[index], episode.attention)
     assert [p.name for p in out.parent.iterdir()] == ["hc.h5"]  # no temporary file left
+    # schema 2: the two main cars (green, brown: slots 0 and 1) are the focal agents
+    assert meta.schema_version == 2 and meta.recorded == OPTIONAL_FIELDS
+    for data in splits.values():
+        assert data.focal[:, :2].all() and not data.focal[:, 2:].any()
+        assert (data.roles[data.focal] < 2).all() and (data.roles[~data.focal] == 2).all()
 
 
 def test_same_config_same_data_for_any_worker_count(tmp_path):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 from torch.distributions import MultivariateNormal
 
@@ -146,9 +147,12 @@ def test_main_agent_weight_makes_weighted_means_over_agent_steps():
     valid[1, 2:, 3] = False  # a distractor that leaves
     base = dict(mean_loss="displacement", sequence=True)
     _, plain = compute_loss(out, positions, valid, t_obs, LossWeights(**base))
-    _, weighted = compute_loss(out, positions, valid, t_obs, LossWeights(**base, main_weight=4.0))
-    # by hand: main agents (slots 0, 1) count 4 times, the others once, in sum and count alike
-    w = torch.tensor([4.0, 4.0, 1.0, 1.0], dtype=torch.float64)
+    focal = torch.tensor([[True, True, False, False], [False, True, False, True]])
+    weights = LossWeights(**base, main_weight=4.0)
+    _, weighted = compute_loss(out, positions, valid, t_obs, weights, focal)
+    # by hand: focal agents count 4 times, the others once, in sum and count alike
+    w = torch.tensor([[4.0, 4.0, 1.0, 1.0], [1.0, 4.0, 1.0, 4.0]], dtype=torch.float64)
+    w = w[:, None, :]  # (B, 1, N)
     keep = (valid[:, 1:] & valid[:, :-1]).double() * w
     err = (positions[:, 1:] - out.one_step.mean).norm(dim=-1)
     assert abs(weighted["de"] - float((err * keep).sum() / keep.sum())) < 1e-9
@@ -163,6 +167,8 @@ def test_main_agent_weight_makes_weighted_means_over_agent_steps():
     unweighted = (err * (keep > 0)).sum() / (keep > 0).sum()
     assert abs(plain["de"] - float(unweighted)) < 1e-9 and plain["de"] != weighted["de"]
     assert weighted["tv"] == plain["tv"] and weighted["tv_seq"] == plain["tv_seq"]
+    with pytest.raises(ValueError, match="needs the focal mask"):
+        compute_loss(out, positions, valid, t_obs, weights)
 
 
 def test_one_step_weight_scales_only_the_one_step_displacement_term():

@@ -23,7 +23,8 @@ def test_ade_fde_by_hand():
     mask[1, :, 2] = False
     mask[1, 1, 1] = False  # scene 1, agent 1 absent at the final step
     case = np.array([0, 1])
-    got = displacement_metrics(pred, true, mask, case, ["major", "minor"])
+    focal = np.array([[True, True, False]] * 2)
+    got = displacement_metrics(pred, true, mask, case, ["major", "minor"], focal)
     main, every = got["main_agents"], got["all_agents"]
     # main agents (0, 1): errors 5, 10, 1, 1 | 1, 1, 0
     assert main["overall"]["ade"] == pytest.approx((5 + 10 + 1 + 1 + 1 + 1 + 0) / 7)
@@ -35,6 +36,25 @@ def test_ade_fde_by_hand():
     assert every["overall"]["count"] == 9 and every["overall"]["scenes"] == 2
 
 
+def test_focal_mask_chooses_the_main_agents_scene_by_scene():
+    # 3 scenes, 1 predicted step, 3 agents; agent a of scene s misses by 10 s + a metres
+    true = np.zeros((3, 1, 3, 2))
+    pred = np.zeros((3, 1, 3, 2))
+    pred[..., 0] = (10 * np.arange(3)[:, None] + np.arange(3)[None, :])[:, None]
+    mask = np.ones((3, 1, 3), dtype=bool)
+    mask[2, 0, 0] = False  # focal but absent: not counted
+    focal = np.array([[False, False, True], [True, False, True], [True, False, False]])
+    got = displacement_metrics(pred, true, mask, np.zeros(3, int), ["all"], focal)
+    main = got["main_agents"]["overall"]
+    assert main["count"] == 3  # scene 0 agent 2, scene 1 agents 0 and 2
+    assert main["ade"] == pytest.approx((2 + 10 + 12) / 3)
+    assert main["fde"] == pytest.approx((2 + 10 + 12) / 3) and main["scenes"] == 3
+    assert got["all_agents"]["overall"]["count"] == 8
+    none = displacement_metrics(pred, true, mask, np.zeros(3, int), ["all"], focal & False)
+    assert none["main_agents"]["overall"]["ade"] is None
+    assert none["main_agents"]["overall"]["count"] == 0
+
+
 def test_empty_case_gives_none():
     got = displacement_metrics(
         np.zeros((1, 2, 2, 2)),
@@ -42,6 +62,7 @@ def test_empty_case_gives_none():
         np.ones((1, 2, 2), bool),
         np.array([0]),
         ["a", "b"],
+        np.ones((1, 2), bool),
     )
     assert got["all_agents"]["cases"]["b"] == {
         "ade": None,

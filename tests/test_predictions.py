@@ -70,6 +70,16 @@ def test_inconsistent_arrays_are_refused() -> None:
         Predictions(**{**values, "num_observed": 10})
 
 
+def test_version_2_file_reads_with_the_first_two_slots_focal(tmp_path: Path) -> None:
+    pred = make_predictions(n=3, num_agents=5)
+    pred.save(tmp_path / "p.npz")
+    arrays = {k: v for k, v in np.load(tmp_path / "p.npz").items() if k != "focal"}
+    np.savez(tmp_path / "v2.npz", **{**arrays, "version": np.int64(2)})
+    loaded = load_predictions(tmp_path / "v2.npz")
+    assert loaded.focal.tolist() == [[True, True, False, False, False]] * 3
+    np.testing.assert_array_equal(loaded.pred_mean, pred.pred_mean)
+
+
 def test_load_rejects_bad_files(tmp_path: Path) -> None:
     make_predictions().save(tmp_path / "p.npz")
     arrays = dict(np.load(tmp_path / "p.npz"))
@@ -83,7 +93,7 @@ def test_load_rejects_bad_files(tmp_path: Path) -> None:
             {k: v for k, v in arrays.items() if k not in ("format", "version")},
             "no format tag; files from before version 2",
         ),
-        "v3.npz": ({**arrays, "version": np.int64(3)}, "version 3 is not supported"),
+        "v4.npz": ({**arrays, "version": np.int64(4)}, "version 4 is not supported"),
         "foreign.npz": ({**arrays, "format": np.str_("other")}, "not a smooth-attention-pred"),
     }
     for name, (content, message) in cases.items():

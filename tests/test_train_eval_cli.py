@@ -25,6 +25,7 @@ NPZ_KEYS = {
     "pred_mean",
     "true_xy",
     "valid",
+    "focal",
     "case",
     "case_names",
     "role_names",

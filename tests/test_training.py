@@ -63,7 +63,7 @@ def braking_scenes(n: int, steps: int, agents: int, num_observed: int, seed: int
 def write_braking_dataset(
     path: Path, counts=(8, 4, 4), steps: int = 12, agents: int = 4, num_observed: int = 5
 ) -> Path:
-    """A small schema-v1 file of `braking_scenes` (train, val, test)."""
+    """A small dataset file of `braking_scenes` (train, val, test)."""
     meta = DatasetMeta(
         scenario="braking_test",
         dt=0.2,

@@ -12,7 +12,7 @@ the regularisation chosen by cross-validation); `ridge_nearest`, `ridge_labelled
 
 Predicts every scene of the split (default test) from its observed steps, feeding back the mean
 of each predicted Gaussian, and reports ADE/FDE [m] per case and overall for the main agents
-(the headline: the first two agent slots) and for all agents, plus the attention accuracy
+(the headline: the data's focal agents) and for all agents, plus the attention accuracy
 against the oracle labels. Diagnostics (predictor/diagnostics.py, also in the JSON): the
 main-agent error per predicted step, for a trained run its teacher-forced one-step error next
 to constant velocity's, and how far a main agent's prediction moves when the history of the
@@ -52,7 +52,7 @@ def parse_args(argv: list[str] | None = None):
         choices=BASELINES,
         help="a baseline: no training run (ridge ones fit on the train split in seconds)",
     )
-    parser.add_argument("--data", required=True, help="dataset file (HDF5, schema v1)")
+    parser.add_argument("--data", required=True, help="dataset file (HDF5, schema 1 or 2)")
     parser.add_argument(
         "--split",
         default="test",

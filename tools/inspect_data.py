@@ -13,7 +13,7 @@ Exit status: 0 valid; 1 the file exists but is not a valid dataset; 2 usage erro
 from __future__ import annotations
 
 from pipeline.cli import ArgumentParser, fail, require_file, run_main
-from predictor.format import SCHEMA_VERSION, FormatError, summarize
+from predictor.format import FormatError, read_meta, summarize
 from predictor.interaction import format_gain_table, interaction_gain
 
 
@@ -28,11 +28,11 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     path = require_file(args.file)
     try:
-        text = summarize(path)
+        text, version = summarize(path), read_meta(path).schema_version
     except FormatError as err:
         fail(str(err), code=1)
     print(text)
-    print(f"OK: {path} is a valid schema v{SCHEMA_VERSION} dataset")
+    print(f"OK: {path} is a valid schema v{version} dataset")
     if args.interaction_gain:
         try:
             rows = interaction_gain(path)

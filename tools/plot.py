@@ -4,7 +4,7 @@
     python tools/plot.py predictions PRED.npz --index 0 --out pred.png
     python tools/plot.py attention PRED.npz --index 0 --agent 0 --target 1 --out attn.png
 
-FILE is a trajectory dataset (schema v1); PRED.npz is a predictions file written by
+FILE is a trajectory dataset (schema 1 or 2); PRED.npz is a predictions file written by
 tools/evaluate.py --save-predictions. The output format follows the suffix of --out (.png, .pdf,
 .svg); an existing output is replaced only with --overwrite. --dpi is limited to [10, 1200] and
 the image to 100 million pixels. The output is written atomically and its path printed at the

@@ -1,0 +1,264 @@
+"""INTERACTION track CSVs as one schema-2 file (the paper's protocol, 40 + 60 steps at 0.1 s).
+
+Input: track files as distributed, CSV with a header naming at least `track_id, frame_id,
+timestamp_ms, agent_type, x, y, vx, vy` (`case_id` optional, `psi_rad, length, width`
+optional and possibly empty, as in pedestrian tracks). A *sequence* is one file, or one
+`case_id` of a file that has that column; frames within it are 0.1 s apart (the frame-id step is
+derived from the data as for ETH/UCY, and the timestamps must agree with it).
+
+Windows (`InteractionConfig`): 40 observed + 60 predicted steps (100 frames, 10 s) starting
+every `stride` frames; every agent seen in a window is one of its agents, those present at all
+100 frames are its focal agents (scored, choosing checkpoints); a window without one is dropped.
+Split 80/10/10 by sequence (never a sequence in two splits): the sequences in a seeded random
+order, the first round(0.8 S) train, the next round(0.1 S) validation, the rest test.
+
+Output: states x, y [m], vx, vy [m/s], and heading [rad] (psi_rad) when every row of the input
+has one; roles = the agent types (recorded); the file's config lists every sequence with its
+split, frame step and window count.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.importers.common import (
+    ImportDataError,
+    Tracks,
+    check_outputs,
+    cut_windows,
+    frame_step,
+    windows_set,
+    write_all,
+)
+from predictor.format import SPLITS, DatasetMeta, TrajectorySet
+
+REQUIRED_COLUMNS = ("track_id", "frame_id", "timestamp_ms", "agent_type", "x", "y", "vx", "vy")
+NUMBER_COLUMNS = ("x", "y", "vx", "vy")
+
+
+@dataclass(frozen=True)
+class InteractionConfig:
+    """Protocol of the import (defaults: the paper's 40 + 60 steps at 0.1 s, 80/10/10)."""
+
+    num_observed: int = 40  # observed steps (4 s)
+    num_predicted: int = 60  # predicted steps (6 s)
+    dt_s: float = 0.1  # [s] between two frames (10 Hz)
+    # frames between window starts; 10 (1 s): stride 1 would repeat each 10 s stretch 100 times
+    stride: int = 10
+    train_fraction: float = 0.8  # of the sequences
+    val_fraction: float = 0.1  # of the sequences; the rest is test
+    seed: int = 0  # of the sequence order behind the split
+
+    def __post_init__(self) -> None:
+        checks = {
+            "num_observed": self.num_observed >= 2,
+            "num_predicted": self.num_predicted >= 1,
+            "dt_s": math.isfinite(self.dt_s) and self.dt_s > 0,
+            "stride": self.stride >= 1,
+            "train_fraction": 0 < self.train_fraction <= 1,
+            "val_fraction": 0 <= self.val_fraction <= 1 - self.train_fraction,
+            "seed": self.seed >= 0,
+        }
+        for name, ok in checks.items():
+            if not ok:
+                raise ValueError(
+                    f"InteractionConfig.{name} is out of range: {getattr(self, name)!r}"
+                )
+
+    @property
+    def num_steps(self) -> int:
+        """Frames per window, T."""
+        return self.num_observed + self.num_predicted
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """One sequence's rows: the tracks (values x, y, vx, vy, psi_rad) and each row's type."""
+
+    name: str  # "file" or "file#case_id"
+    tracks: Tracks
+    agent_type: np.ndarray  # (R,) str
+    timestamp_ms: np.ndarray  # (R,) float64
+
+
+def read_sequences(path: Path) -> list[Sequence]:
+    """The sequences of one track CSV; ImportDataError naming the file and line for a missing
+    column, a short row, a bad number, a repeated (frame, track) or a timestamp off 0.1 s."""
+    try:
+        with open(path, newline="", encoding="utf-8") as stream:
+            reader = csv.reader(stream)
+            header = [name.strip() for name in next(reader, [])]
+            missing = [c for c in REQUIRED_COLUMNS if c not in header]
+            if missing:
+                raise ImportDataError(f"{path}:1: missing column(s) {missing} in the header")
+            rows = {}  # case -> list of (line, values, type, timestamp)
+            for number, fields in enumerate(reader, start=2):
+                if not fields or all(not f.strip() for f in fields):
+                    continue
+                case, row = _parse_row(path, number, header, fields)
+                rows.setdefault(case, []).append(row)
+    except (OSError, UnicodeDecodeError, csv.Error) as err:
+        raise ImportDataError(f"{path}: cannot read ({err})") from None
+    return [_sequence(path, case, part) for case, part in sorted(rows.items())]
+
+
+def _parse_row(path: Path, number: int, header: list[str], fields: list[str]) -> tuple:
+    where = f"{path}:{number}"
+    if len(fields) != len(header):
+        raise ImportDataError(f"{where}: {len(fields)} fields, the header names {len(header)}")
+    cell = dict(zip(header, (f.strip() for f in fields), strict=True))
+
+    def number_of(name: str, integral: bool = False) -> float:
+        try:
+            value = float(cell[name])
+        except ValueError:
+            raise ImportDataError(f"{where}: {name} {cell[name]!r} is not a number") from None
+        if not math.isfinite(value) or (integral and not value.is_integer()):
+            kind = "an integer" if integral else "a finite number"
+            raise ImportDataError(f"{where}: {name} {cell[name]!r} is not {kind}")
+        return value
+
+    case = int(number_of("case_id", True)) if "case_id" in cell else -1
+    heading = number_of("psi_rad") if cell.get("psi_rad") else math.nan
+    values = [number_of(c) for c in NUMBER_COLUMNS] + [heading]
+    ids = (int(number_of("frame_id", True)), int(number_of("track_id", True)))
+    if not cell["agent_type"]:
+        raise ImportDataError(f"{where}: empty agent_type")
+    return case, (number, ids, values, cell["agent_type"], number_of("timestamp_ms"))
+
+
+def _sequence(path: Path, case: int, rows: list[tuple]) -> Sequence:
+    name = str(path) if case < 0 else f"{path}#{case}"
+    ids = np.array([r[1] for r in rows], dtype=np.int64)  # (R, 2) frame, track
+    tracks = Tracks(
+        source=str(path),
+        line=np.array([r[0] for r in rows], dtype=np.int64),
+        frame=ids[:, 0],
+        agent=ids[:, 1],
+        values=np.array([r[2] for r in rows], dtype=np.float64),
+    )
+    _, first, counts = np.unique(ids, axis=0, return_index=True, return_counts=True)
+    if (counts > 1).any():
+        frame, track = ids[first[counts > 1][0]]
+        again = np.flatnonzero((ids[:, 0] == frame) & (ids[:, 1] == track))[1]
+        raise ImportDataError(
+            f"{path}:{tracks.line[again]}: track {track} appears twice in frame {frame}"
+        )
+    return Sequence(
+        name=name,
+        tracks=tracks,
+        agent_type=np.array([r[3] for r in rows]),
+        timestamp_ms=np.array([r[4] for r in rows]),
+    )
+
+
+def _check_timing(sequence: Sequence, dt_s: float) -> int:
+    """The frame step; ImportDataError unless the timestamps advance dt_s per step."""
+    tracks = sequence.tracks
+    step = frame_step(tracks)
+    if step == 0:
+        return 0
+    expected = (tracks.frame - tracks.frame.min()) / step * dt_s * 1000.0
+    offset = sequence.timestamp_ms - sequence.timestamp_ms[np.argmin(tracks.frame)]
+    wrong = np.abs(offset - expected) > 0.25 * dt_s * 1000.0
+    if wrong.any():
+        row = int(np.argmax(wrong))
+        raise ImportDataError(
+            f"{tracks.source}:{tracks.line[row]}: timestamp_ms {sequence.timestamp_ms[row]:g} "
+            f"is not {dt_s:g} s per frame step ({step}) from the sequence's first frame"
+        )
+    return step
+
+
+def split_sequences(count: int, config: InteractionConfig) -> list[str]:
+    """The split of each of `count` sequences (80/10/10 by default, seeded order)."""
+    order = np.random.default_rng(config.seed).permutation(count)
+    train = round(config.train_fraction * count)
+    val = round(config.val_fraction * count)
+    names = ["train"] * train + ["val"] * val + ["test"] * (count - train - val)
+    split = [""] * count
+    for rank, index in enumerate(order):
+        split[int(index)] = names[rank]
+    return split
+
+
+def import_interaction(
+    inputs: list[str | os.PathLike],
+    out: str | os.PathLike,
+    config: InteractionConfig,
+    overwrite: bool,
+) -> Path:
+    """Import the track CSVs `inputs` (files, or folders searched for *.csv) into the file
+    `out`, written only once everything has been read. Returns the path."""
+    out = Path(out)
+    check_outputs([out], overwrite)  # before the work, so a refusal is immediate
+    paths = _csv_files(inputs)
+    sequences = [s for path in paths for s in read_sequences(path)]
+    if not sequences:
+        raise ImportDataError("no track rows in " + ", ".join(str(p) for p in paths))
+    with_heading = all(not np.isnan(s.tracks.values[:, 4]).any() for s in sequences)
+    channels = 5 if with_heading else 4
+    types = sorted({t for s in sequences for t in s.agent_type.tolist()})
+    parts: dict[str, list] = {split: [] for split in SPLITS}
+    listing = []
+    for sequence, split in zip(sequences, split_sequences(len(sequences), config), strict=True):
+        step = _check_timing(sequence, config.dt_s)
+        tracks = dataclasses.replace(sequence.tracks, values=sequence.tracks.values[:, :channels])
+        windows = cut_windows(tracks, config.num_steps, config.stride)
+        type_of = dict(zip(tracks.agent.tolist(), sequence.agent_type.tolist(), strict=True))
+        roles = np.array(
+            [[types.index(type_of[a]) if a >= 0 else 0 for a in row] for row in windows.agent],
+            dtype=np.int8,
+        ).reshape(windows.agent.shape)
+        parts[split].append((windows, roles))
+        listing.append(
+            {
+                "sequence": sequence.name,
+                "split": split,
+                "frame_step": step,
+                "windows": windows.count,
+            }
+        )
+    splits: dict[str, TrajectorySet] = {
+        split: windows_set(part, config.num_steps, channels) for split, part in parts.items()
+    }
+    meta = DatasetMeta(
+        scenario="interaction",
+        dt=config.dt_s,
+        num_observed=config.num_observed,
+        num_predicted=config.num_predicted,
+        case_names=("all",),
+        major_case="",
+        role_names=tuple(types),
+        config={
+            "importer": "interaction",
+            "settings": dataclasses.asdict(config),
+            "sequences": listing,
+        },
+        state_names=("x", "y", "vx", "vy", "heading")[:channels],
+        action_names=(),
+        recorded=("roles",),
+    )
+    write_all({out: (meta, splits)}, overwrite)
+    return out
+
+
+def _csv_files(inputs: list[str | os.PathLike]) -> list[Path]:
+    files = []
+    for entry in map(Path, inputs):
+        if entry.is_dir():
+            files.extend(sorted(entry.rglob("*.csv")))
+        elif entry.is_file():
+            files.append(entry)
+        else:
+            raise ImportDataError(f"{entry}: no such file or folder")
+    if not files:
+        raise ImportDataError("no .csv files in " + ", ".join(str(p) for p in inputs))
+    return files
