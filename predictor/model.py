@@ -528,7 +528,8 @@ class SmoothAttentionPredictor(nn.Module):
         state = state or RecurrentState(None, None, None)
         o_edge, h_edge = self.g_interact(x_edge.flatten(1, 3), state.edge)  # (S, B*M, H)
         o_self, h_self = self.g_self(x_self.flatten(1, 2), state.self_loop)  # (S, B*N, H)
-        o_edge = o_edge.view(num_steps, batch, num_agents, num_agents - 1, -1)  # (S, B, N, N-1, H)
+        hidden = self.config.edge_hidden  # explicit: a scene of one agent has no edges
+        o_edge = o_edge.view(num_steps, batch, num_agents, num_agents - 1, hidden)  # (S,B,N,N-1,H)
         o_self = o_self.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
         theta = self._attention(o_self, o_edge, present, labels, head)  # (S, B, N, N-1)
         attended = (theta.unsqueeze(-1) * o_edge).sum(-2)  # (S, B, N, H)
@@ -614,8 +615,11 @@ class SmoothAttentionPredictor(nn.Module):
             _, head = edge_index(positions.shape[2], positions.device)
             own, pair = agent_features(steps.pos, steps.prev_pos, present, steps.frame, head)
             own, pair = own[present], pair[edge_present(present, head)]  # (K, 4), (K2, 4)
-            self.input_mean.copy_(torch.cat([own.mean(0), pair.mean(0)]))
-            std = torch.cat([own.std(0), pair.std(0)])
+            pair_mean, pair_std = pair.new_zeros(4), pair.new_ones(4)  # no pairs: identity
+            if len(pair) >= 2:  # (scenes of one agent have no pairs to measure)
+                pair_mean, pair_std = pair.mean(0), pair.std(0)
+            self.input_mean.copy_(torch.cat([own.mean(0), pair_mean]))
+            std = torch.cat([own.std(0), pair_std])
             self.input_std.copy_(std.clamp(min=MIN_STAT_STD))
         if self.config.offset_scale == "deviation" or self.config.acceleration_input:
             pos, prev = steps.pos, steps.prev_pos

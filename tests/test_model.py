@@ -214,3 +214,18 @@ def test_attention_gain_multiplies_the_scores_before_the_softmax():
     expected = torch.softmax(3.0 * log_plain, -1).nan_to_num(0.0)
     torch.testing.assert_close(gained, expected, atol=1e-5, rtol=1e-4)
     assert not torch.allclose(gained, plain)
+
+
+def test_a_scene_of_one_agent_predicts_as_if_the_others_were_absent():
+    """N = 1 has no edges; its predictions equal those of the same agent next to an agent that
+    is never present (masked out of the attention, so nothing is attended either way)."""
+    model = make_model(seed=3)
+    positions, valid, _ = make_scene(batch=2, steps=9, agents=5)
+    positions, valid = positions[:, :, :2].clone(), valid[:, :, :2].clone()
+    valid[:, :, 1] = False
+    positions[:, :, 1] = 0.0
+    alone = model.predict(positions[:, :, :1], valid[:, :, :1], num_observed=4)
+    paired = model.predict(positions, valid, num_observed=4)
+    assert alone.attention.shape == (2, 4, 1, 0)
+    torch.testing.assert_close(alone.rollout.mean, paired.rollout.mean[:, :, :1])
+    torch.testing.assert_close(alone.one_step.mean, paired.one_step.mean[:, :, :1])
