@@ -15,13 +15,13 @@ the expert so that what each main car is *observed* doing decides the other's fu
 - the front car paces the rear car: it tracks the rear car's speed as it saw it 0.8 s earlier,
   plus a fixed margin of 1 m/s (so the gap keeps opening).
 
-The rear car's braking starts 1.1-2.5 s into the episode (inside the observed 2.8 s) and the
-front car answers it 0.8 s later, mostly in the predicted window: how much it slows is told by
-the rear car's observed state, not by its own history. The rear car's braking is told by the
-gap and the front car's speed, its merge by the front car's observed lane change. Randomness
-that no observation resolves is removed: the reaction delays, the margin, the IDM parameters
-and the lane-change durations are fixed (v0's duration and delay ranges are overridden by
-ranges with equal ends).
+The rear car sees the front car leave its lane by 2.8 s at the latest (the end of the observed
+window), brakes 0.4 s later as far as the gap asks, and the front car answers it 0.8 s after
+that, mostly in the predicted window: how much it slows is told by the rear car's observed
+state, not by its own history. The rear car's braking is told by the gap and the front car's
+speed, its merge by the front car's observed lane change. Randomness that no observation
+resolves is removed: the reaction delays, the margin, the IDM parameters and the lane-change
+durations are fixed (v0's duration and delay ranges are overridden by ranges with equal ends).
 
 Labels are causal: each main car attends to the other at every step (the front car's speed
 target is the rear car's delayed speed; the rear car's car following and merge read the front
