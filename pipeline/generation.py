@@ -1,6 +1,6 @@
 """Dataset generation as one library call: a validated config in, an HDF5 dataset file out.
 
-    config = GenerateConfig.for_scenario("halting_car", minor_ratio=0.3)
+    config = GenerateConfig.for_scenario("halting_car_v1", minor_ratio=0.3)
     result = generate_dataset(config, default_output(config), workers=2)
     print(result.summary())
 
@@ -43,6 +43,9 @@ FOCAL_AGENTS = (GREEN, BROWN)  # the two main cars: the agents scored and select
 
 SEED_STRIDE = 1_000_000  # trajectory seeds: SEED_STRIDE * seed + k
 DEFAULT_MINOR_RATIO = 0.3  # the paper uses 0.3 and 0.8
+# the scenario generated when none is named: the v1 Double Merge, whose labelled car's observed
+# state decides the attending car's future (docs/scenarios.md); v0 stays available by name
+DEFAULT_SCENARIO = "double_merge_v1"
 MAX_MINOR_RATIO = 10.0  # larger ratios are almost certainly a typo
 MAX_ATTEMPTS = 5  # replacement rounds for rejected (unsafe) episodes
 SPLIT_ORDER = ("train", "val", "test")
@@ -92,7 +95,7 @@ class GenerateConfig:
     @classmethod
     def for_scenario(
         cls,
-        scenario: str,
+        scenario: str = DEFAULT_SCENARIO,
         *,
         major_case: str | None = None,
         num_major: int = 50,
@@ -102,7 +105,8 @@ class GenerateConfig:
         val_fraction: float = 0.2,
         seed: int = 0,
     ) -> GenerateConfig:
-        """The config with the scenario's defaults filled in (what tools/generate.py builds).
+        """The config with the scenario's defaults filled in (what tools/generate.py builds);
+        `scenario` defaults to DEFAULT_SCENARIO.
 
         `major_case` defaults to the scenario's `default_major_case`; the minor case is the other
         case. The minor count is `num_minor` if given, else round(minor_ratio x num_major) with

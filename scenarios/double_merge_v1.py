@@ -20,29 +20,28 @@ DESCRIPTION = """Double Merge v1: the two main cars swap lanes, each reacting to
 
     ## Description
     As v0 (the green car `car_0` in lane 2 and the brown car `car_1` in lane 1 want each
-    other's lane; case `major`: green starts behind, `minor`: ahead), with a reactive expert
-    (`scenarios.double_merge_reactive`): the rear car lets the front car in, holding back from
-    the start to its cruise minus a yield speed of 0.5 to 3 m/s drawn per episode; the front
-    car starts its lane change at its planned time (0.5 to 2 s) only once the bumper gap to the
-    rear car is at least 2 m plus 1 s of the rear car's speed, and until then drives 1 m/s
-    above the cruise; once it cuts in, the rear car follows it with the Intelligent Driver
-    Model (time headway 1.2 s, desired speed the cruise, reaction delay 0.4 s) and, as in v0,
-    moves next to the centre line and merges 0.4 s after the front car has settled. Both lane
-    changes take 3.5 s. `car_2` ... `car_21` are distractors. All randomness comes from the
-    reset seed; the ranges are the fields of `scenarios.ReactiveDoubleMergeConfig` (the
-    `config` argument takes one).
+    other's lane; case `major`: green starts behind, `minor`: ahead; the front car starts its
+    lane change 0.5 to 2 s into the episode), with a reactive expert
+    (`scenarios.double_merge_reactive`): once the rear car sees the front car 0.2 m out of its
+    lane centre it follows it with the Intelligent Driver Model (time headway 1.5 s, desired
+    speed the cruise, reaction delay 0.4 s), so it brakes as much as the observed gap and
+    speeds ask; as in v0 it moves next to the centre line and merges 0.4 s after the front car
+    has settled. The front car paces the rear car: it tracks the rear car's speed as seen
+    0.8 s earlier plus 1 m/s, so it answers the rear car's braking mostly after the observed
+    window. Both lane changes take 3.5 s. `car_2` ... `car_21` are distractors. All
+    randomness comes from the reset seed; the ranges are the fields of
+    `scenarios.ReactiveDoubleMergeConfig` (the `config` argument takes one).
 """
 HISTORY = """## Version History
-    - v1: the rear car yields and then follows the front car (IDM with a delay), the front
-      car waits for a safe gap; hidden per-episode durations and delays fixed.
+    - v1: the rear car follows the front car (IDM with a delay) once it sees it leave its
+      lane, the front car paces the rear car (delayed); hidden durations and delays fixed.
     - v0: first version.
     """
 CHANGES = {
     '-1 for none: the main cars attend to each other, the paper\'s "Correct"\n    oracle), '
     "`interaction` (the rear main car is waiting next to the centre line)": "-1 for none: the\n"
-    "    rear main car attends to the front one throughout, the front one to the rear one from\n"
-    "    its planned start until it starts its lane change), `interaction` (the front car is\n"
-    "    watching the rear car or the rear car is waiting next to the centre line)",
+    "    main cars attend to each other, each reacting to the other), `interaction` (from the\n"
+    "    rear car seeing the front car leave its lane until it starts its own lane change)",
     "`scenarios.rollout(DoubleMerge(),": "`scenarios.rollout(ReactiveDoubleMerge(),",
     "| DoubleMergeConfig  |": "| ReactiveDoubleMergeConfig |",
 }

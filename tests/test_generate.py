@@ -86,6 +86,18 @@ def test_paper_settings_counts(kwargs, minor_pool, major_pool):
     assert seeds == [generation.SEED_STRIDE * config.seed + k for k in range(len(seeds))]
 
 
+def test_default_scenario_is_double_merge_v1_and_v0_stays_available():
+    config = GenerateConfig.for_scenario()
+    assert (config.scenario, config.major_case, config.minor_case) == (
+        "double_merge_v1",
+        "major",
+        "minor",
+    )
+    assert generate_tool.config_from_args(generate_tool.parse_args([])) == config
+    args = generate_tool.parse_args(["--scenario", "double_merge"])
+    assert generate_tool.config_from_args(args).scenario == "double_merge"
+
+
 def test_go_as_major_case_and_cli_builds_the_same_config():
     config = GenerateConfig.for_scenario("halting_car", major_case="go", num_major=7, seed=2)
     assert (config.major_case, config.minor_case, config.num_minor) == ("go", "stop", 2)

@@ -128,8 +128,8 @@ def test_quick_run_writes_the_figures(quick):
     names = {p.name for p in figures.glob("*.png")}
     expected = {f"bars_{s}.png" for s in SETTINGS} | {
         "size_study.png",
-        "samples_double_merge.png",
-        "samples_halting_car.png",
+        "samples_double_merge_v1.png",
+        "samples_halting_car_v1.png",
         *(f"scene_{s}_{c}.png" for s in ("dm_r0.3", "hc_stop") for c in ("major", "minor")),
     }
     assert names == expected
@@ -371,7 +371,7 @@ def test_jobs_cover_every_variant_and_seed(tmp_path):
     assert {(j.variant, j.seed) for j in jobs if j.save_scenes} == {("ours", 0), ("s_attn", 0)}
     data = Path(jobs[0].data_path)
     assert data.parent == tmp_path / "data"
-    assert re.fullmatch(r"halting_car_go-major_15\+50_test50_seed0_[0-9a-f]{8}\.h5", data.name)
+    assert re.fullmatch(r"halting_car_v1_go-major_15\+50_test50_seed0_[0-9a-f]{8}\.h5", data.name)
     assert all(j.data_path == jobs[0].data_path for j in jobs)
     assert re.fullmatch(r"seed0_ep7_[0-9a-f]{8}", Path(jobs[0].run_dir).name)
     assert Path(jobs[0].run_dir).parent.name == "ours" and jobs[-1].run_dir.endswith("ridge")
@@ -448,3 +448,9 @@ def test_results_store_rebuilds_the_report_in_a_fresh_cache_and_budget_leaves_ru
     )
     assert not list((tmp_path / "c").rglob("eval.json"))
     assert "not started: time budget" in (tmp_path / "c" / "RESULTS.md").read_text()
+
+
+def test_settings_use_the_v1_scenarios():
+    scenarios = {name: SETTING_BY_NAME[name].scenario for name in SETTINGS}
+    assert {s for n, s in scenarios.items() if n.startswith("dm_")} == {"double_merge_v1"}
+    assert {s for n, s in scenarios.items() if n.startswith("hc_")} == {"halting_car_v1"}

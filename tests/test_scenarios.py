@@ -197,11 +197,9 @@ def test_distractors_drive_straight_at_constant_speed(name: str, case: str) -> N
 
 @pytest.mark.parametrize(("name", "case"), CASES)
 def test_attention_labels(name: str, case: str) -> None:
-    if name == "double_merge_v1":
-        pytest.skip("time-varying labels: test_double_merge_v1_labels_follow_the_cut_in")
     run = episodes(name, case)[0]
     expected = np.full(22, -1)
-    if name == "double_merge":
+    if name.startswith("double_merge"):
         expected[GREEN], expected[BROWN] = BROWN, GREEN  # the paper's "Correct" oracle
     else:
         expected[GREEN] = BROWN  # the follower (green) watches the leader (brown)
@@ -269,120 +267,86 @@ def test_halting_car_go_case_keeps_speed_and_has_no_interaction() -> None:
 
 
 # --- Double Merge v1 ------------------------------------------------------------------------------
-def cut_in_steps(run: Episode) -> tuple[int, int, int]:
-    """(front, rear, the step at which the front car starts its lane change: its last step
-    of attending to the rear car)."""
-    front = int(np.argmax(run.states[0, :2, 0]))  # the main car ahead at the start
-    rear = 1 - front
-    watching = np.nonzero(run.attention[:, front] >= 0)[0]
-    assert len(watching) > 0  # it did watch (and start)
-    return front, rear, int(watching[-1])
-
-
-def planned_step(plan) -> int:
-    """First control step at or after the front car's planned start (0.2 s steps)."""
-    return int(np.ceil(plan.front_change_start_s / 0.2 - 1e-6))
+def main_order(run: Episode) -> tuple[int, int]:
+    """(front, rear): the main car ahead at the start and the other."""
+    front = int(np.argmax(run.states[0, :2, 0]))
+    return front, 1 - front
 
 
 @pytest.mark.parametrize("case", ReactiveDoubleMerge.case_names)
-def test_double_merge_v1_labels_follow_the_cut_in(case: str) -> None:
-    """200 seeds: the rear car attends to the front one throughout; the front one to the rear
-    one exactly from its planned start to the step its lane change starts; the interaction
-    starts inside the observed window."""
+def test_double_merge_v1_rear_car_follows_once_it_sees_the_front_car_leave_its_lane(
+    case: str,
+) -> None:
+    """200 seeds: the interaction starts at the first step the front car is 0.2 m out of its
+    lane centre, inside the observed window; before the rear car's reaction delay has passed
+    after it, the rear car only tracks its cruise (no braking); the swap completes."""
     config = ReactiveDoubleMergeConfig()
-    for seed, run in enumerate(episodes("double_merge_v1", case)):
-        front, rear, start = cut_in_steps(run)
-        first = planned_step(plan_of("double_merge_v1", seed, case))
+    for run in episodes("double_merge_v1", case):
+        front, rear = main_order(run)
         assert (front == BROWN) == (case == "major")
-        np.testing.assert_array_equal(run.attention[:, rear], front)
-        np.testing.assert_array_equal(run.attention[:first, front], -1)
-        np.testing.assert_array_equal(run.attention[first : start + 1, front], rear)
-        np.testing.assert_array_equal(run.attention[start + 1 :, front], -1)
-        np.testing.assert_array_equal(run.attention[:, 2:], -1)
-        assert np.argmax(run.interaction) <= config.num_observed - 1
+        lane, target = run.states[0, front, 1], run.states[0, rear, 1]
+        departure = (run.states[:, front, 1] - lane) * np.sign(target - lane)  # (T,)
+        seen = int(np.argmax(departure >= config.follow_trigger_m))
+        assert np.argmax(run.interaction) == seen <= config.num_observed - 1
+        # speed tracking with +-0.3 m/s jitter asks for at most 1.5 x 0.3 m/s^2 of braking
+        assert run.actions[: seen + 2, rear, 1].min() > -0.5  # seen + 2: its delay
+        assert abs(run.states[-1, front, 1] - target) < 0.05
+        assert abs(run.states[-1, rear, 1] - lane) < 0.05
 
 
 @pytest.mark.parametrize("case", ReactiveDoubleMerge.case_names)
-def test_double_merge_v1_front_car_never_cuts_in_closer_than_its_safe_gap(case: str) -> None:
-    """From the recorded states: when the front car starts its lane change, the bumper gap is
-    at least 2 m + 1 s x the rear car's speed, and one step earlier (if it was already
-    watching) it was not; before that it stays in its lane (no lateral move), and the swap
-    completes within the episode."""
-    config = ReactiveDoubleMergeConfig()
-    waited = 0
-    for seed, run in enumerate(episodes("double_merge_v1", case)):
-        front, rear, start = cut_in_steps(run)
-        states = run.states
-        gap = states[:, front, 0] - states[:, rear, 0] - config.car_length_m  # (T,)
-        margin = gap - (2.0 + 1.0 * states[:, rear, 3])  # over the cut-in gap
-        assert margin[start] >= -1e-4
-        if start > planned_step(plan_of("double_merge_v1", seed, case)):
-            assert margin[start - 1] < 1e-4
-            waited += 1
-        lane = states[0, front, 1]
-        assert np.abs(states[: start + 1, front, 1] - lane).max() < 0.05
-        assert abs(states[-1, front, 1] - states[0, rear, 1]) < 0.3  # front swapped
-    assert waited >= 50  # the rule binds in a good share of the scenes
+def test_double_merge_v1_front_car_answers_the_rear_car_in_the_predicted_window(
+    case: str,
+) -> None:
+    """200 seeds: at least 80 % of the front car's braking (the sum of its negative
+    accelerations) comes after the last observed step, and it does brake; it ends faster than
+    the rear car (its margin)."""
+    last_observed = ReactiveDoubleMergeConfig().num_observed - 1
+    for run in episodes("double_merge_v1", case):
+        front, rear = main_order(run)
+        braking = np.clip(-run.actions[:, front, 1].astype(float), 0.0, None)  # (T,)
+        assert braking[last_observed:].sum() >= 0.8 * braking.sum() > 0.0
+        assert run.states[-1, front, 3] > run.states[-1, rear, 3] + 0.5
 
 
-def test_double_merge_v1_rear_car_yields_by_its_drawn_speed() -> None:
-    """Before the cut-in the rear car slows towards its cruise minus its yield speed (the
-    per-scene courtesy the observed window shows; its 0.4 s delay overshoots by < 1 m/s) and
-    never speeds up; smaller yields give later cut-ins."""
-    starts, yields = [], []
-    for seed, run in enumerate(episodes("double_merge_v1", "major")[:60]):
-        plan = plan_of("double_merge_v1", seed, "major")
-        front, rear, start = cut_in_steps(run)
-        assert plan.yield_speed_mps > 0.4
-        speed = run.states[: start + 1, rear, 3]
-        assert speed.max() <= speed[0] + 1e-4
-        low = speed.min() - (plan.cruise_speed_mps - plan.yield_speed_mps)
-        assert -1.0 < low < 0.5
-        starts.append(start)
-        yields.append(plan.yield_speed_mps)
-    assert np.corrcoef(starts, yields)[0, 1] < -0.3
-
-
-def test_double_merge_v1_front_car_waits_for_the_rear_car_and_the_rear_car_follows() -> None:
-    """Causal in both directions (forced actions): a rear car that brakes earlier lets the front
-    car cut in earlier; a front car that brakes after cutting in slows the rear car exactly one
-    reaction delay later."""
+def test_double_merge_v1_each_main_car_reacts_to_the_other_one_delay_later() -> None:
+    """Causal in both directions (forced actions): a rear car forced to brake from step k
+    changes the front car's actions from step k + 1 + 4 (0.8 s) on, not earlier; a front car
+    forced to brake from step k changes the rear car's from k + 1 + 2 (0.4 s) on; both then
+    decelerate more than in the free run."""
     sc = ReactiveDoubleMerge()
-    seed = next(
-        s
-        for s in range(50)
-        if cut_in_steps(episodes("double_merge_v1", "major")[s])[2]
-        > planned_step(plan_of("double_merge_v1", s, "major")) + 5
-    )
-    base = rollout(sc, seed, "major")
-    front, rear, start = cut_in_steps(base)
-    forced = np.full_like(base.actions, np.nan)
-    forced[:start, rear] = (0.0, -2.0)  # the rear car falls back from the start
-    let_in = rollout(sc, seed, "major", forced_actions=forced)
-    assert cut_in_steps(let_in)[2] < start
-
-    delay = sc.plan.rear_reaction_steps
-    assert delay == 2
-    k = start + 5
-    forced = np.full_like(base.actions, np.nan)
-    forced[k:, front] = (0.0, -3.0)
-    braked = rollout(sc, seed, "major", forced_actions=forced)
-    same = k + 1 + delay
-    np.testing.assert_array_equal(braked.actions[:same, rear, 1], base.actions[:same, rear, 1])
-    assert braked.actions[same, rear, 1] < base.actions[same, rear, 1]
+    base = rollout(sc, 5, "major")
+    front, rear = main_order(base)
+    k = 20  # after the front car left its lane: the rear car follows it
+    assert base.interaction[k]
+    for pushed, reacting, delay in ((rear, front, 4), (front, rear, 2)):
+        forced = np.full_like(base.actions, np.nan)
+        forced[k:, pushed] = (0.0, -3.0)
+        braked = rollout(sc, 5, "major", forced_actions=forced)
+        same = k + 1 + delay
+        np.testing.assert_array_equal(
+            braked.actions[:same, reacting], base.actions[:same, reacting]
+        )
+        assert not np.array_equal(braked.actions[same, reacting], base.actions[same, reacting])
+        later = slice(same, same + 5)  # over the next second it slows down more
+        assert (
+            braked.actions[later, reacting, 1].sum() < base.actions[later, reacting, 1].sum() - 0.2
+        )
+    assert (sc.plan.front_reaction_steps, sc.plan.rear_reaction_steps) == (4, 2)
 
 
-def test_double_merge_v1_front_car_ignores_the_rear_car_outside_its_label() -> None:
-    """The front car's actions change only at steps where it is labelled: perturbing the rear
-    car after the cut-in leaves them unchanged."""
+def test_double_merge_v1_rear_car_brakes_harder_for_a_smaller_gap() -> None:
+    """The rear car's braking is set by the gap it observes: the same scene with the front car
+    started 3 m closer makes it brake harder (its strongest deceleration)."""
     sc = ReactiveDoubleMerge()
-    base = rollout(sc, 3, "minor")
-    front, rear, start = cut_in_steps(base)
-    forced = np.full_like(base.actions, np.nan)
-    forced[start:, rear] = (0.0, -2.0)
-    perturbed = rollout(sc, 3, "minor", forced_actions=forced)
-    assert not np.allclose(perturbed.states[:, rear], base.states[:, rear])
-    np.testing.assert_array_equal(perturbed.actions[:, front], base.actions[:, front])
+    plan = plan_of("double_merge_v1", 6, "minor")
+    state = plan.initial_state.copy()
+    state[plan.front, 0] -= 3.0
+    closer = dataclasses.replace(plan, initial_state=state)
+    base = rollout(sc, 6, "minor", plan=plan)
+    near = rollout(sc, 6, "minor", plan=closer)
+    assert not near.collided
+    assert near.actions[:, plan.rear, 1].min() < base.actions[:, plan.rear, 1].min() - 0.3
 
 
 # --- Halting Car v1 -------------------------------------------------------------------------------

@@ -1,6 +1,7 @@
 """Generate a major/minor trajectory dataset from a scenario's expert and write it to HDF5.
 
-Example: python tools/generate.py --scenario halting_car --minor-ratio 0.3
+Example: python tools/generate.py --scenario halting_car_v1 --minor-ratio 0.3
+(without --scenario: double_merge_v1; the v0 scenarios are `double_merge` and `halting_car`)
 
 The training pool holds `--num-major` trajectories of the major case and round(R x num-major)
 of the minor case (or `--num-minor` exactly); `--val-fraction` of each case is split off for
@@ -20,6 +21,7 @@ from pipeline.cli import ArgumentParser, fail, run_main
 from pipeline.generation import (
     BACKENDS,
     DEFAULT_MINOR_RATIO,
+    DEFAULT_SCENARIO,
     GenerateConfig,
     UnsafeExpertError,
     default_output,
@@ -38,7 +40,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         description="Generate a major/minor trajectory dataset (HDF5) from a scenario's expert.",
     )
     parser.add_argument(
-        "--scenario", required=True, choices=sorted(SCENARIOS), help="scenario to simulate"
+        "--scenario",
+        default=DEFAULT_SCENARIO,
+        choices=sorted(SCENARIOS),
+        help=f"scenario to simulate (default {DEFAULT_SCENARIO})",
     )
     parser.add_argument(
         "--minor-ratio",
@@ -56,7 +61,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--major-case",
         default=None,
-        help="the frequent case (default: double_merge 'major', halting_car 'stop')",
+        help="the frequent case (default: 'major' for Double Merge, 'stop' for Halting Car)",
     )
     parser.add_argument(
         "--num-major",
