@@ -51,14 +51,16 @@ def history_features(
     (B, N, 4 * steps - 3), oldest first (velocities, then accelerations; without the last
     velocity's lateral component, which the frame makes zero), and (B, N) whether
     the agent is present over the whole window. With fewer observed steps than `steps` + 1
-    the oldest velocities and accelerations are zeros (the fit gives them no weight).
+    the oldest velocities and accelerations are zeros (the fit gives them no weight); with
+    fewer than 3 no agent is usable (constant velocity).
 
     The accelerations are linear in the velocities, but standardised on their own they make
     the regularised fit read them cheaply (Double Merge, 12 steps: test ADE of the main cars
     0.33 m from velocities alone)."""
     span = min(steps, num_observed - 1)
-    if span < 2:
-        raise ValueError(f"the highway needs at least 3 observed steps, got {num_observed}")
+    if span < 2:  # no acceleration observed yet (e.g. under observed_jitter): no highway
+        shape = (*present.shape[1:], 4 * steps - 3)
+        return pos.new_zeros(shape), torch.zeros_like(present[0])
     window = pos[num_observed - 1 - span : num_observed]  # (span + 1, B, N, 2)
     usable = present[num_observed - 1 - span : num_observed].all(0)  # (B, N)
     velocity = rotate(window[1:] - window[:-1], rotation, inverse=True)  # (span, B, N, 2)

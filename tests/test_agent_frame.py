@@ -265,8 +265,11 @@ def test_agent_preset_run_keeps_its_fitted_scales_and_is_deterministic(dataset_f
     train_set = TrajectoryDataset(dataset_file, "train")
     fresh = SmoothAttentionPredictor(resolve_roles(model_cfg, train_set.meta.role_names))
     scenes = train_set.all()
-    fresh.fit_normalisation(scenes.positions, scenes.valid, train_set.meta.num_observed)
-    for name in ("input_mean", "input_std", "offset_std", "anchor_std"):
+    fresh.fit_normalisation(
+        scenes.positions, scenes.valid, train_set.meta.num_observed, scenes.roles
+    )
+    names = ("input_mean", "input_std", "offset_std", "anchor_std", "highway_weight")
+    for name in names + ("highway_bias", "highway_fold_weight", "highway_fold_bias"):
         torch.testing.assert_close(getattr(model, name), getattr(fresh, name))
     assert not torch.equal(model.input_std, torch.ones_like(model.input_std))
     first, second = (evaluate_run(run, dataset_file).to_dict() for run in runs)
