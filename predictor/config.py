@@ -296,8 +296,9 @@ VARIANTS: dict[str, Variant] = {
 # "agent": agent-centric standardised inputs, relative velocity on edges, deviation-scaled
 # agent-frame offsets, an anchored rollout, agent roles as inputs, and a longer cosine schedule
 # with smaller batches (more optimiser steps: 52 training scenes at batch 8 are only 7 steps
-# per epoch), and the main agents' loss terms weighted 5x. docs/PREDICTOR.md has the
-# measurement behind each switch.
+# per epoch), the main agents' loss terms weighted 5x, a cross-fitted linear highway for the
+# agent's own motion and attention scores times 10. docs/PREDICTOR.md has the measurement
+# behind each switch.
 PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     "paper": ({}, {}),
     "agent": (
@@ -309,6 +310,8 @@ PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
             "detach_covariance": True,
             "rollout_prior": "anchored",
             "num_roles": ROLES_FROM_DATA,
+            "highway_steps": 12,
+            "attention_gain": 10.0,
         },
         {
             "lr_schedule": "cosine",
