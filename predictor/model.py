@@ -38,7 +38,10 @@ training split (`fit_normalisation`, kept as buffers in the checkpoint). The mea
 Cholesky factor are predicted in that frame and rotated to world axes; with
 `offset_scale="deviation"` the offset's unit is the training split's RMS one-step deviation from
 constant velocity. The model is then equivariant to rotating and translating a scene.
-`detach_covariance` gives the covariance a head of its own behind a stop-gradient.
+`detach_covariance` gives the covariance a head of its own behind a stop-gradient. With
+`highway_steps` a linear map of each agent's observed velocities, fitted in closed form
+(`predictor.highway`), adds its velocity changes to the anchored rollout's prior, and the
+network predicts the rest.
 
 Everything is batched over scenes, agents and edges; the only Python loop is over the time steps
 of the fed-back rollout. Absent agents are masked out of the attention.
@@ -603,7 +606,9 @@ class SmoothAttentionPredictor(nn.Module):
         (zero mean by construction, so a zero output stays constant velocity; also the unit of
         the acceleration input, `acceleration_input`). `anchor_std`
         (rollout_prior "anchored") is the RMS per axis of the agent-frame velocity change since
-        the last observed step, v^t - v^{T_obs-1}, over the predicted steps.
+        the last observed step, v^t - v^{T_obs-1}, over the predicted steps. With
+        `highway_steps` the highway's maps are fitted too (`_fit_highway`; roles (B, N) choose
+        the map where the model reads roles).
         """
         if self.config.frame != "agent":
             raise ValueError("fit_normalisation needs frame='agent'")
