@@ -32,7 +32,7 @@ def test_demo_writes_every_output_and_reports_both_predictors(tmp_path):
     expected = {
         "episode.png",
         "episode.gif",
-        "double_merge.h5",
+        "double_merge_v1.h5",
         "run_ours",
         "predictions.npz",
         "eval_const_vel.json",
@@ -45,7 +45,7 @@ def test_demo_writes_every_output_and_reports_both_predictors(tmp_path):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (out / "episode.gif").read_bytes()[:6] == b"GIF89a"
 
-    data = out / "double_merge.h5"
+    data = out / "double_merge_v1.h5"
     meta, test = read_meta(data), read_split(data, "test")
     assert test.n == 20  # the demo's 10 test trajectories per case
     predictions = load_predictions(out / "predictions.npz")

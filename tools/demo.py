@@ -24,7 +24,7 @@ import numpy as np
 
 from carlo_lite import render_rgb
 from pipeline.cli import ArgumentParser, fail, run_main, writing
-from pipeline.generation import GenerateConfig, generate_dataset
+from pipeline.generation import DEFAULT_SCENARIO, GenerateConfig, generate_dataset
 from predictor.config import make_configs
 from predictor.evaluation import evaluate_baseline, evaluate_run
 from predictor.format import read_meta, read_split
@@ -33,7 +33,7 @@ from predictor.training import train
 from scenarios import SCENARIOS
 from scenarios.rollout import advance
 
-DEMO_SCENARIO = "double_merge"
+DEMO_SCENARIO = DEFAULT_SCENARIO  # the generator's default (Double Merge v1)
 DEMO_DATA = {"num_major": 20, "minor_ratio": 0.3, "num_test": 10}  # small: trains in minutes
 
 
@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> None:
     out.mkdir(parents=True)
 
     print(f"== simulate: wrote {simulate_episode(out, args.seed)}", flush=True)
-    data = out / "double_merge.h5"
+    data = out / f"{DEMO_SCENARIO}.h5"
     print("== generate", flush=True)
     config = GenerateConfig.for_scenario(DEMO_SCENARIO, **DEMO_DATA, seed=args.seed)
     print(generate_dataset(config, data).summary(), flush=True)
