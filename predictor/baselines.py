@@ -31,9 +31,12 @@ has one (`ridge_states` puts it in channel 2), else from its last observed displ
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:  # annotations only: the baselines run on plain numpy arrays
+    from predictor.format import DatasetMeta, TrajectorySet
 
 BASELINES = ("const_vel", "ridge", "ridge_nearest", "ridge_labelled", "ridge_random")
 RIDGE_BASELINES = {  # baseline name -> RidgeConfig.neighbours
@@ -192,6 +195,16 @@ class RidgeBaseline:
             )
             self.models[int(role)], self.alpha[int(role)] = model, alpha
         return self
+
+    def fit_set(self, data: TrajectorySet, meta: DatasetMeta) -> RidgeBaseline:
+        """`fit` on the scenes of `data`, a split of a file described by `meta`."""
+        states = ridge_states(data.states, meta.state_names)
+        return self.fit(states, data.valid, data.attention, data.roles, meta.num_observed, meta.dt)
+
+    def predict_set(self, data: TrajectorySet, meta: DatasetMeta) -> np.ndarray:
+        """`predict` the scenes of `data`, a split of a file described by `meta`."""
+        states = ridge_states(data.states, meta.state_names)
+        return self.predict(states, data.valid, data.attention, data.roles)
 
     def predict(
         self, states: np.ndarray, valid: np.ndarray, attention: np.ndarray, roles: np.ndarray

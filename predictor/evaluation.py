@@ -28,7 +28,6 @@ from predictor.baselines import (
     RidgeBaseline,
     RidgeConfig,
     constant_velocity,
-    ridge_states,
 )
 from predictor.config import ModelConfig, model_config_from_dict
 from predictor.data import Batch, TrajectoryDataset
@@ -145,14 +144,7 @@ def fit_baseline(
             f"the {name} baseline reads attention labels, which the {meta.scenario} data lacks"
         )
     try:
-        ridge = RidgeBaseline(config).fit(
-            ridge_states(fit.states, meta.state_names),
-            fit.valid,
-            fit.attention,
-            fit.roles,
-            meta.num_observed,
-            meta.dt,
-        )
+        ridge = RidgeBaseline(config).fit_set(fit, meta)
     except ValueError as err:
         raise EvaluationError(f"cannot fit the {name} baseline: {err}") from None
     details = {
@@ -160,9 +152,7 @@ def fit_baseline(
         "history_steps": ridge.history,
         "alpha": {meta.role_names[role]: alpha for role, alpha in sorted(ridge.alpha.items())},
     }
-    return lambda data: ridge.predict(
-        ridge_states(data.states, meta.state_names), data.valid, data.attention, data.roles
-    ), details
+    return lambda data: ridge.predict_set(data, meta), details
 
 
 def score(predictions: Predictions) -> dict:

@@ -142,3 +142,45 @@ def velocity_changes(features: Tensor, usable: Tensor, weight: Tensor, bias: Ten
 def fold_of(scenes: Tensor, folds: int) -> Tensor:
     """The cross-fitting fold of training scenes, by their index in the training split."""
     return scenes % folds
+
+
+def fit_cross_fitted(
+    features: Tensor,
+    offsets: Tensor,
+    samples: Tensor,
+    roles: Tensor,
+    num_roles: int,
+    horizon: int,
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """`fit_highway` on all scenes (B, ...) and once without each cross-fitting fold (scene b is
+    in fold b mod CROSS_FIT_FOLDS): weight (R, F, horizon, 2), bias (R, horizon, 2) and the
+    fold maps (CROSS_FIT_FOLDS, R, F, horizon, 2), (CROSS_FIT_FOLDS, R, horizon, 2)."""
+    weight, bias, _ = fit_highway(features, offsets, samples, roles, num_roles, horizon)
+    fold = fold_of(torch.arange(features.shape[0]), CROSS_FIT_FOLDS)  # (B,)
+    fold_maps = []
+    for k in range(CROSS_FIT_FOLDS):
+        rest = fold != k
+        fitted = fit_highway(
+            features[rest], offsets[rest], samples[rest], roles[rest], num_roles, horizon
+        )
+        fold_maps.append(fitted[:2])
+    fold_weight = torch.stack([w for w, _ in fold_maps])
+    fold_bias = torch.stack([b for _, b in fold_maps])
+    return weight, bias, fold_weight, fold_bias
+
+
+def agent_maps(
+    weight: Tensor,
+    bias: Tensor,
+    fold_weight: Tensor,
+    fold_bias: Tensor,
+    roles: Tensor,
+    scenes: Tensor | None,
+) -> tuple[Tensor, Tensor]:
+    """Each agent's map (B, N, F, horizon, 2), (B, N, horizon, 2) by its role (B, N): the map
+    of all training scenes, or with `scenes` (B,) (training-split indices) the map fitted
+    without the scene's fold."""
+    if scenes is None:
+        return weight[roles], bias[roles]
+    fold = fold_of(scenes, CROSS_FIT_FOLDS).unsqueeze(-1).expand_as(roles)  # (B, N)
+    return fold_weight[fold, roles], fold_bias[fold, roles]

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from predictor.baselines import RidgeBaseline, RidgeConfig, ridge_states
+from predictor.baselines import RidgeBaseline, RidgeConfig
 from predictor.format import read_meta, read_split
 from predictor.metrics import prediction_mask
 
@@ -64,16 +64,8 @@ def interaction_gain(
     truth = data.states[:, meta.num_observed :, :, :2]
     ade = {}
     for mode in MODES:
-        ridge = RidgeBaseline(RidgeConfig(neighbours=mode)).fit(
-            ridge_states(fit.states, meta.state_names),
-            fit.valid,
-            fit.attention,
-            fit.roles,
-            meta.num_observed,
-            meta.dt,
-        )
-        states = ridge_states(data.states, meta.state_names)
-        pred = ridge.predict(states, data.valid, data.attention, data.roles)
+        ridge = RidgeBaseline(RidgeConfig(neighbours=mode)).fit_set(fit, meta)
+        pred = ridge.predict_set(data, meta)
         error = np.where(mask, np.linalg.norm(pred - truth, axis=-1), 0.0)  # (n, P, N)
         ade[mode] = (error.sum(axis=1), mask.sum(axis=1))  # (n, N) each
     rows = []

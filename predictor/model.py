@@ -68,8 +68,8 @@ from predictor.agent_frame import (
 from predictor.config import ModelConfig
 from predictor.highway import (
     CROSS_FIT_FOLDS,
-    fit_highway,
-    fold_of,
+    agent_maps,
+    fit_cross_fitted,
     future_offsets,
     history_features,
     velocity_changes,
@@ -481,12 +481,14 @@ class SmoothAttentionPredictor(nn.Module):
         roles = steps.role_index
         if roles is None:
             roles = torch.zeros(usable.shape, dtype=torch.long, device=usable.device)
-        if steps.scenes is None:  # the map of all training scenes
-            weight, bias = self.highway_weight[roles], self.highway_bias[roles]
-        else:  # each training scene: the map fitted without its fold
-            fold = fold_of(steps.scenes, CROSS_FIT_FOLDS).unsqueeze(-1).expand_as(roles)
-            weight = self.highway_fold_weight[fold, roles]  # (B, N, F, horizon, 2)
-            bias = self.highway_fold_bias[fold, roles]  # (B, N, horizon, 2)
+        weight, bias = agent_maps(
+            self.highway_weight,
+            self.highway_bias,
+            self.highway_fold_weight,
+            self.highway_fold_bias,
+            roles,
+            steps.scenes,
+        )  # (B, N, F, horizon, 2), (B, N, horizon, 2)
         change = velocity_changes(features, usable, weight, bias)  # (B, N, horizon, 2)
         return rotate(change.permute(2, 0, 1, 3), rotation).permute(1, 2, 0, 3)
 
@@ -660,18 +662,12 @@ class SmoothAttentionPredictor(nn.Module):
                 raise ValueError("the model reads agent roles; fit_normalisation needs them")
             roles = torch.zeros(usable.shape, dtype=torch.long)
         num_roles, horizon = self.highway_weight.shape[0], self.config.highway_horizon
-        samples, roles = usable & complete, roles.long()
-        weight, bias, _ = fit_highway(features, offsets, samples, roles, num_roles, horizon)
-        self.highway_weight.copy_(weight)
-        self.highway_bias.copy_(bias)
-        fold = fold_of(torch.arange(features.shape[0]), CROSS_FIT_FOLDS)  # (B,)
-        for k in range(CROSS_FIT_FOLDS):
-            rest = fold != k
-            weight, bias, _ = fit_highway(
-                features[rest], offsets[rest], samples[rest], roles[rest], num_roles, horizon
-            )
-            self.highway_fold_weight[k].copy_(weight)
-            self.highway_fold_bias[k].copy_(bias)
+        maps = fit_cross_fitted(
+            features, offsets, usable & complete, roles.long(), num_roles, horizon
+        )
+        buffers = ("highway_weight", "highway_bias", "highway_fold_weight", "highway_fold_bias")
+        for name, value in zip(buffers, maps):
+            getattr(self, name).copy_(value)
 
     def _default_normalisation(self) -> None:
         """Unfitted scales: the car constants of the paper model (used when not standardise)."""
