@@ -184,3 +184,44 @@ def agent_maps(
         return weight[roles], bias[roles]
     fold = fold_of(scenes, CROSS_FIT_FOLDS).unsqueeze(-1).expand_as(roles)  # (B, N)
     return fold_weight[fold, roles], fold_bias[fold, roles]
+
+
+def neighbour_features(
+    pos: Tensor, present: Tensor, num_observed: int, rotation: Tensor, steps: int, head: Tensor
+) -> tuple[Tensor, Tensor]:
+    """Edge features g_ij of the attended highway (`ModelConfig.highway_attended`), as the
+    ridge baseline's neighbour features: the other agent j's position relative to agent i at
+    the last observed step and j's velocities [m/step] over the last `steps` observed steps,
+    both in i's frame. Time-first inputs pos (T, B, N, 2), present (T, B, N), rotation
+    (B, N, 2), head (N*(N-1),) the edges' other agents (i-major). Returns (B, N, N-1,
+    2 * steps + 2), oldest velocity first (zeros before the first observed step), and (B, N,
+    N-1) whether i and j are both present over the window (features zero elsewhere)."""
+    num_agents, batch = pos.shape[2], pos.shape[1]
+    edges = (batch, num_agents, num_agents - 1)
+    span = min(steps, num_observed - 1)
+    if span < 1 or num_agents < 2:
+        return pos.new_zeros(*edges, 2 * steps + 2), torch.zeros(edges, dtype=torch.bool)
+    last = num_observed - 1
+    window = pos[last - span : last + 1]  # (span + 1, B, N, 2)
+    usable = present[last - span : last + 1].all(0)  # (B, N)
+    frame = rotation.unsqueeze(2)  # (B, N, 1, 2): agent i's frame for each of its edges
+    theirs = window.index_select(2, head).view(span + 1, *edges, 2)  # (span+1, B, N, N-1, 2)
+    relative = rotate(theirs[-1] - window[-1].unsqueeze(2), frame, inverse=True)  # (B,N,N-1,2)
+    velocity = rotate(theirs[1:] - theirs[:-1], frame, inverse=True)  # (span, B, N, N-1, 2)
+    missing = velocity.new_zeros(steps - span, *velocity.shape[1:])
+    velocity = torch.cat([missing, velocity], 0).permute(1, 2, 3, 0, 4).flatten(3)
+    mask = usable.index_select(-1, head).view(edges) & usable.unsqueeze(-1)  # (B, N, N-1)
+    features = torch.cat([relative, velocity], -1)  # (B, N, N-1, 2 * steps + 2)
+    return torch.where(mask.unsqueeze(-1), features, 0.0), mask
+
+
+def attended_changes(
+    features: Tensor, mask: Tensor, theta: Tensor, mean: Tensor, std: Tensor, weight: Tensor
+) -> Tensor:
+    """The attended highway's velocity changes (B, N, horizon, 2), agent frame, in units of
+    the model's `anchor_std`: sum_j theta_ij z_ij mapped by each agent's `weight` (B, N, F,
+    horizon, 2), where z_ij are the standardised edge features (B, N, N-1, F) (zero off
+    `mask`) and theta (B, N, N-1) the attention at the last observed step."""
+    standard = torch.where(mask.unsqueeze(-1), (features - mean) / std, 0.0)
+    attended = (theta.unsqueeze(-1) * standard).sum(2)  # (B, N, F)
+    return torch.einsum("bnf,bnfkc->bnkc", attended, weight)

@@ -69,9 +69,11 @@ from predictor.config import ModelConfig
 from predictor.highway import (
     CROSS_FIT_FOLDS,
     agent_maps,
+    attended_changes,
     fit_cross_fitted,
     future_offsets,
     history_features,
+    neighbour_features,
     velocity_changes,
 )
 
@@ -244,6 +246,12 @@ class SmoothAttentionPredictor(nn.Module):
             folds = CROSS_FIT_FOLDS  # the maps that training scenes use (cross-fitting)
             self.register_buffer("highway_fold_weight", torch.zeros(folds, *shape, 2))
             self.register_buffer("highway_fold_bias", torch.zeros(folds, shape[0], shape[2], 2))
+        if config.highway_attended:  # statistics fitted with the normalisation, map learnt
+            features = 2 * config.highway_steps + 2  # relative position and velocities
+            self.register_buffer("attended_mean", torch.zeros(features))
+            self.register_buffer("attended_std", torch.ones(features))
+            shape = (max(config.num_roles, 1), features, config.highway_horizon, 2)
+            self.attended_weight = nn.Parameter(torch.zeros(shape))
         self.g_self = nn.LSTM(emb, hid)
         self.g_interact = nn.LSTM(emb, hid)
         learned = config.attention_mode == "learned"
@@ -431,7 +439,8 @@ class SmoothAttentionPredictor(nn.Module):
             # LSTM's last h), so the rollout loss trains every step of the rollout's means
             o_last = state.node[0][0].view(*present.shape, -1)  # (B, N, Hn)
             raw = self._raw_outputs(o_last, anchored=True)  # (B, N, 5)
-            changes = self._highway(steps)  # (B, N, horizon, 2) world axes, or None
+            # (B, N, horizon, 2) world axes, or None
+            changes = self._highway(steps, observed.attention[-1])
             if changes is not None:
                 anchor = anchor.unsqueeze(2) + changes  # (B, N, horizon, 2) per predicted step
             first = anchor if changes is None else anchor[:, :, 0]
@@ -469,9 +478,10 @@ class SmoothAttentionPredictor(nn.Module):
             present=present,
         )
 
-    def _highway(self, steps: _Steps) -> Tensor | None:
+    def _highway(self, steps: _Steps, theta: Tensor) -> Tensor | None:
         """The highway's velocity changes over the rollout (B, N, horizon, 2), world axes
-        (None without a highway)."""
+        (None without a highway); theta (B, N, N-1): the attention at the last observed step
+        (read by the attended highway)."""
         if not self.config.highway_steps:
             return None
         rotation = steps.frame[1]
@@ -490,7 +500,26 @@ class SmoothAttentionPredictor(nn.Module):
             steps.scenes,
         )  # (B, N, F, horizon, 2), (B, N, horizon, 2)
         change = velocity_changes(features, usable, weight, bias)  # (B, N, horizon, 2)
+        if self.config.highway_attended:
+            change = change + self._attended(steps, theta, roles)
         return rotate(change.permute(2, 0, 1, 3), rotation).permute(1, 2, 0, 3)
+
+    def _attended(self, steps: _Steps, theta: Tensor, roles: Tensor) -> Tensor:
+        """The attended highway's velocity changes (B, N, horizon, 2), agent frame [m/step]."""
+        _, head = edge_index(steps.pos.shape[2], steps.pos.device)
+        features, mask = neighbour_features(
+            steps.pos,
+            steps.present,
+            steps.num_observed,
+            steps.frame[1],
+            self.config.highway_steps,
+            head,
+        )
+        weight = self.attended_weight[roles]  # (B, N, F, horizon, 2)
+        change = attended_changes(
+            features, mask, theta, self.attended_mean, self.attended_std, weight
+        )
+        return change * self.anchor_std  # (B, N, horizon, 2)
 
     def _run(
         self,
@@ -668,6 +697,15 @@ class SmoothAttentionPredictor(nn.Module):
         buffers = ("highway_weight", "highway_bias", "highway_fold_weight", "highway_fold_bias")
         for name, value in zip(buffers, maps):
             getattr(self, name).copy_(value)
+        if self.config.highway_attended:  # standardisation over the usable edges
+            _, head = edge_index(steps.pos.shape[2], steps.pos.device)
+            edges, mask = neighbour_features(
+                steps.pos, steps.present, t_obs, rotation, self.config.highway_steps, head
+            )
+            edges = edges[mask]  # (K, F)
+            if len(edges) >= 2:
+                self.attended_mean.copy_(edges.mean(0))
+                self.attended_std.copy_(edges.std(0).clamp(min=MIN_STAT_STD))
 
     def _default_normalisation(self) -> None:
         """Unfitted scales: the car constants of the paper model (used when not standardise)."""

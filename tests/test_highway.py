@@ -8,15 +8,18 @@ import math
 import pytest
 import torch
 
+from predictor.agent_frame import agent_frames
 from predictor.config import ModelConfig, make_configs
 from predictor.highway import (
     CROSS_FIT_FOLDS,
+    attended_changes,
     fit_highway,
     future_offsets,
     history_features,
+    neighbour_features,
     velocity_changes,
 )
-from predictor.model import SmoothAttentionPredictor
+from predictor.model import SmoothAttentionPredictor, edge_index
 
 torch.set_num_threads(1)
 
@@ -162,3 +165,107 @@ def test_fewer_observed_steps_than_the_highway_reads_leave_the_oldest_features_z
     torch.testing.assert_close(padded[..., 13:], short[..., 5:])
     features, usable = history_features(pos, present, 2, rotation, 3)  # one velocity only
     assert features.shape == (2, 3, 9) and not features.any() and not usable.any()
+
+
+def test_neighbour_features_are_the_other_agents_motion_in_the_agents_frame():
+    # agent 0 drives north at 1 m/step, agent 1 east at 1 m/step from (3, 5); agent 2 misses
+    # step 2 of the window, so it has no edges
+    t = torch.arange(5, dtype=torch.float32).view(1, -1, 1)
+    north = torch.cat([0 * t, t], -1)  # (1, T, 2)
+    east = torch.cat([3 + t, 5 + 0 * t], -1)
+    positions = torch.stack([north, east, east + 10], 2)  # (1, T, 3, 2)
+    valid = torch.ones(1, 5, 3, dtype=torch.bool)
+    valid[0, 2, 2] = False
+    _, rotation = agent_frames(positions, valid, 4)  # agent 0's x axis points north
+    _, head = edge_index(3)
+    pos, present = positions.transpose(0, 1), valid.transpose(0, 1)
+    features, mask = neighbour_features(pos, present, 4, rotation, 2, head)
+    assert features.shape == (1, 3, 2, 6)
+    # edge 0 -> 1 at step 3: agent 1 is at (6, 5), agent 0 at (0, 3): 2 m ahead of it and
+    # 6 m to its right; agent 1's velocity (1, 0) is (0, -1) in agent 0's frame
+    expected = torch.tensor([2.0, -6.0, 0.0, -1.0, 0.0, -1.0])
+    torch.testing.assert_close(features[0, 0, 0], expected)
+    assert mask[0].tolist() == [[True, False], [True, False], [False, False]]
+    assert not features[0, 0, 1].any() and not features[0, 2].any()
+
+
+def test_attended_changes_with_one_hot_attention_read_the_attended_agent_alone():
+    gen = torch.Generator().manual_seed(0)
+    features = torch.randn(2, 3, 2, 4, generator=gen)  # (B, N, N-1, F)
+    mask = torch.ones(2, 3, 2, dtype=torch.bool)
+    mask[1, 2, 0] = False  # an edge off the graph contributes nothing
+    mean, std = torch.randn(4, generator=gen), torch.rand(4, generator=gen) + 0.5
+    weight = torch.randn(2, 3, 4, 5, 2, generator=gen)  # (B, N, F, horizon, 2)
+    theta = torch.zeros(2, 3, 2)
+    theta[..., 1] = 1.0  # everyone attends its second other agent
+    out = attended_changes(features, mask, theta, mean, std, weight)
+    standard = (features[:, :, 1] - mean) / std  # (B, N, F)
+    torch.testing.assert_close(out, torch.einsum("bnf,bnfkc->bnkc", standard, weight))
+    theta = torch.zeros(2, 3, 2)
+    theta[1, 2, 0] = 1.0
+    assert not attended_changes(features, mask, theta, mean, std, weight)[1, 2].any()
+
+
+def test_attended_highway_starts_as_the_plain_highway_and_reads_the_attention():
+    num_observed, steps = 8, 14
+    train, valid = accelerating_scenes(batch=20, steps=steps, agents=3, seed=5)
+    plain = ModelConfig(**SMALL, **ANCHORED, highway_steps=4, highway_horizon=6)
+    attended = ModelConfig(**{**plain.__dict__, "highway_attended": True})
+    models = []
+    for config in (plain, attended):
+        torch.manual_seed(0)
+        models.append(SmoothAttentionPredictor(config))
+        models[-1].fit_normalisation(train, valid, num_observed)
+    outputs = [m.predict(train, valid, num_observed).rollout.mean for m in models]
+    torch.testing.assert_close(outputs[1], outputs[0])  # zero map: no change
+    model = models[1]
+    weight = torch.randn(model.attended_weight.shape, generator=torch.Generator().manual_seed(1))
+
+    def first_step_shift() -> torch.Tensor:
+        """What the map moves the first predicted position by (the network's part cancels)."""
+        with torch.no_grad():
+            model.attended_weight.copy_(weight)
+            moved = model.predict(train, valid, num_observed)
+            model.attended_weight.zero_()
+            still = model.predict(train, valid, num_observed).rollout.mean
+        return (moved.rollout.mean - still)[:, 0], moved.attention[:, -1]
+
+    shift, theta = first_step_shift()  # theta: the attention at the last observed step
+    _, head = edge_index(3)
+    _, rotation = agent_frames(train, valid, num_observed)
+    pos, present = train.transpose(0, 1), valid.transpose(0, 1)
+    features, mask = neighbour_features(pos, present, num_observed, rotation, 4, head)
+    change = (
+        attended_changes(
+            features,
+            mask,
+            theta,
+            model.attended_mean,
+            model.attended_std,
+            weight[0].expand(20, 3, -1, -1, -1),
+        )[:, :, 0]
+        * model.anchor_std
+    )  # agent frame
+    world = torch.stack(
+        [
+            rotation[..., 0] * change[..., 0] - rotation[..., 1] * change[..., 1],
+            rotation[..., 1] * change[..., 0] + rotation[..., 0] * change[..., 1],
+        ],
+        -1,
+    )
+    torch.testing.assert_close(shift, world, atol=1e-5, rtol=1e-4)
+    with torch.no_grad():  # another attention, another shift
+        model.f_attn.weight.mul_(3.0)
+    other, other_theta = first_step_shift()
+    assert (other_theta - theta).abs().max() > 1e-3
+    assert (other - shift).abs().max() > 1e-4
+    loss = model(train, valid, num_observed, sample=False).rollout.mean.square().sum()
+    loss.backward()
+    assert model.attended_weight.grad.abs().sum() > 0  # trained by the rollout's loss
+
+
+def test_attended_highway_needs_the_highway_and_s_attn_drops_it():
+    with pytest.raises(ValueError, match="highway_attended needs highway_steps"):
+        ModelConfig(**ANCHORED, highway_attended=True)
+    model, _ = make_configs("s_attn", {"highway_attended": True}, preset="agent")
+    assert not model.highway_attended and model.highway_steps == 0

@@ -56,6 +56,7 @@ MODEL_FLAGS = (
     "attention_gain",
     "highway_steps",
     "highway_horizon",
+    "highway_attended",
 )
 TRAIN_FLAGS = (
     "epochs",
