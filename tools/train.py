@@ -20,6 +20,7 @@ from predictor.config import (
     LR_SCHEDULES,
     MEAN_LOSSES,
     MEAN_PRIORS,
+    NEIGHBOURS,
     OFFSET_SCALES,
     PRESETS,
     ROLLOUT_FEEDS,
@@ -56,6 +57,9 @@ MODEL_FLAGS = (
     "attention_gain",
     "highway_steps",
     "highway_horizon",
+    "neighbours",
+    "neighbour_radius_m",
+    "neighbour_k",
 )
 TRAIN_FLAGS = (
     "epochs",
@@ -76,6 +80,7 @@ TRAIN_FLAGS = (
     "observed_jitter",
     "main_agent_weight",
     "one_step_weight",
+    "bucket_batches",
 )
 CHOICES = {  # string fields with a fixed set of values
     "mean_prior": MEAN_PRIORS,
@@ -85,6 +90,7 @@ CHOICES = {  # string fields with a fixed set of values
     "lr_schedule": LR_SCHEDULES,
     "rollout_feed": ROLLOUT_FEEDS,
     "mean_loss": MEAN_LOSSES,
+    "neighbours": NEIGHBOURS,
 }
 
 
