@@ -38,7 +38,8 @@ class ModelConfig:
 
     Defaults are chosen so that a full paper-length training run (200 epochs of ~52 scenes with
     22 agents, 462 edges per scene) takes under ten minutes on one CPU thread (see
-    benchmarks/bench_training.py); the edge RNN over all N*(N-1) edges dominates the cost.
+    benchmarks/bench_training.py); the edge RNN over the N*(N-1) edges of the complete graph
+    dominates the cost (a sparse `neighbours` graph makes it ~N*k; benchmarks/bench_graph.py).
 
     Inputs are 2-D positions in metres. Inside the model they are expressed relative to a
     per-scene origin (the mean position of the agents present at the last observed step) and

@@ -1,12 +1,20 @@
 """The smooth-attention trajectory predictor (Cao et al., ICRA 2022, Sec. "Method").
 
-A directed complete graph with self-loops over the N agents of a scene:
+A directed graph with self-loops over the N agents of a scene (the paper's: complete):
 
 - edge (i, j), i != j:  x_ij = F_interact(concat(s_i, s_j)),  o_ij = G_interact(x_ij)  (LSTM)
 - self-loop (i, i):     x_ii = F_self(concat(s_i^{t-1}, s_i^t)), o_ii = G_self(x_ii)   (LSTM)
-- attention:            theta_ij = softmax over present j != i of <F_attn(o_ii), F_attn(o_ij)>
+- attention:            theta_ij = softmax over present neighbours j of <F_attn(o_ii), F_attn(o_ij)>
 - node:                 o_i = G_pred(F_embed(s_i), sum_j theta_ij o_ij, o_ii)            (LSTM)
 - output:               (mu_i, Sigma_i) of the next position = F_pred(o_i)
+
+Graph (`ModelConfig.neighbours`, `predictor.graph`): every other agent ("all", the paper's),
+those within a radius, or the k nearest, chosen once per window (each edge keeps an LSTM state
+across the steps) and only between agents that are present in it. The edges are packed into
+one list for the batch, so the edge LSTM and the attention cost O(edges): a segment softmax
+over each agent's edges and an index_add for the attended sum; an agent without a present
+neighbour attends to nothing (sum 0). The attention is returned in the layout (..., N, N-1)
+(zero off the graph), which the losses and metrics read.
 
 Time indexing: the step at time t (t = 0 .. T-2) reads the states at t (and t-1 for the
 self-loop; at t = 0, or when the agent was absent at t-1, the previous state is the current one)
@@ -44,7 +52,8 @@ constant velocity. The model is then equivariant to rotating and translating a s
 network predicts the rest.
 
 Everything is batched over scenes, agents and edges; the only Python loop is over the time steps
-of the fed-back rollout. Absent agents are masked out of the attention.
+of the fed-back rollout. Absent agents have no edges, or (present at other steps of the window)
+are masked out of the attention while absent.
 """
 
 from __future__ import annotations
@@ -142,7 +151,7 @@ class StepOutputs:
     """Outputs of a block of S consecutive steps, time-first."""
 
     gaussian: Gaussian2D  # (S, B, N, 2) mean, (S, B, N, 3) tril: next-position predictions
-    attention: Tensor  # (S, B, N, N-1): theta_ij over the other agents j (edge order)
+    attention: Tensor  # (S, B, N, N-1): theta_ij over the other agents j, 0 off the graph
     state: RecurrentState
 
 
@@ -160,7 +169,8 @@ class ModelOutput:
     """Everything the losses and the evaluation need, batch-first.
 
     `attention` tensors are compact: entry [..., i, k] is the weight of agent i on its k-th
-    other agent (agents 0..N-1 without i, in order); `expand_attention` gives (..., N, N).
+    other agent (agents 0..N-1 without i, in order), zero where that agent is no neighbour of i
+    (`ModelConfig.neighbours`) or absent; `expand_attention` gives (..., N, N).
     The rollout fields are None when the pass made no rollout.
     """
 
