@@ -72,27 +72,26 @@ def agent_frames(positions: Tensor, valid: Tensor, num_observed: int) -> AgentFr
     return origin, rotation
 
 
-def edge_present(present: Tensor, head: Tensor) -> Tensor:
-    """Edges whose tail and head agents are both present: (..., N) -> (..., N, N-1)."""
-    num_agents = present.shape[-1]
-    heads = present.index_select(-1, head).view(*present.shape, num_agents - 1)
-    return heads & present.unsqueeze(-1)
-
-
-def agent_features(
-    pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFrame, head: Tensor
-) -> tuple[Tensor, Tensor]:
-    """Raw agent-frame features [m, m/step], inputs time-first (S, B, N, 2): own position and
-    velocity of i (S, B, N, 4), and position and velocity of j relative to i (S, B, N, N-1, 4),
-    all in i's frame."""
+def own_features(pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFrame) -> Tensor:
+    """Raw own position and velocity of each agent in its frame [m, m/step], (S, B, N, 4);
+    inputs time-first (S, B, N, 2)."""
     origin, rotation = frame
     vel = torch.where(present.unsqueeze(-1), pos - prev_pos, 0.0)  # (S, B, N, 2)
     own = rotate(pos - origin, rotation, inverse=True)  # (S, B, N, 2)
-    own_vel = rotate(vel, rotation, inverse=True)  # (S, B, N, 2)
-    num_agents = pos.shape[2]
-    shape = (*pos.shape[:2], num_agents, num_agents - 1, 2)
-    rel = pos.index_select(2, head).view(shape) - pos.unsqueeze(3)  # (S, B, N, N-1, 2)
-    rel_vel = vel.index_select(2, head).view(shape) - vel.unsqueeze(3)  # (S, B, N, N-1, 2)
-    rot = rotation.unsqueeze(2)  # (B, N, 1, 2)
-    pair = torch.cat([rotate(rel, rot, inverse=True), rotate(rel_vel, rot, inverse=True)], -1)
-    return torch.cat([own, own_vel], -1), pair
+    return torch.cat([own, rotate(vel, rotation, inverse=True)], -1)
+
+
+def pair_features(
+    pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFrame, tail: Tensor, head: Tensor
+) -> Tensor:
+    """Raw position and velocity of head j relative to tail i, in i's frame [m, m/step], for
+    packed edges given as flat agent indices b * N + i (E,): (S, E, 4). Inputs time-first
+    (S, B, N, 2)."""
+    rotation = frame[1].flatten(0, 1).index_select(0, tail)  # (E, 2) the tail's frame
+    vel = torch.where(present.unsqueeze(-1), pos - prev_pos, 0.0).flatten(1, 2)  # (S, B*N, 2)
+    flat = pos.flatten(1, 2)  # (S, B*N, 2)
+    rel = flat.index_select(1, head) - flat.index_select(1, tail)  # (S, E, 2)
+    rel_vel = vel.index_select(1, head) - vel.index_select(1, tail)  # (S, E, 2)
+    return torch.cat(
+        [rotate(rel, rotation, inverse=True), rotate(rel_vel, rotation, inverse=True)], -1
+    )

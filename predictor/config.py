@@ -29,6 +29,7 @@ ROLES_FROM_DATA = -1  # ModelConfig.num_roles: one role input per role name of t
 LR_SCHEDULES = ("constant", "cosine")
 ROLLOUT_FEEDS = ("sample", "mean")
 MEAN_LOSSES = ("nll", "displacement")
+NEIGHBOURS = ("all", "radius", "knn")  # ModelConfig.neighbours (predictor.graph)
 
 
 @dataclass(frozen=True)
@@ -37,7 +38,8 @@ class ModelConfig:
 
     Defaults are chosen so that a full paper-length training run (200 epochs of ~52 scenes with
     22 agents, 462 edges per scene) takes under ten minutes on one CPU thread (see
-    benchmarks/bench_training.py); the edge RNN over all N*(N-1) edges dominates the cost.
+    benchmarks/bench_training.py); the edge RNN over the N*(N-1) edges of the complete graph
+    dominates the cost (a sparse `neighbours` graph makes it ~N*k; benchmarks/bench_graph.py).
 
     Inputs are 2-D positions in metres. Inside the model they are expressed relative to a
     per-scene origin (the mean position of the agents present at the last observed step) and
@@ -132,6 +134,22 @@ class ModelConfig:
     # features (Double Merge v1: 1.72 -> 1.37 m); through this path the attention gets the
     # gradient of a linear model of the attended car. Needs highway_steps.
     highway_attended: bool = False
+    # --- the neighbour graph (predictor.graph; fixed per window, edges only between agents
+    # that are present; the edge RNN and the attention cost O(edges)) ---
+    # "all": every other agent (the paper's complete graph, N(N-1) edges); "radius": the agents
+    # within neighbour_radius_m; "knn": the neighbour_k nearest. Radius and kNN measure distances
+    # at each agent's last observed step (docs/PREDICTOR.md), so a crowd of N agents costs
+    # ~N k edges instead of N(N-1). "all" is the default: the paper's model, and on the
+    # synthetic car scenarios the attended car is not always among the nearest (below).
+    neighbours: str = "all"
+    # [m] radius of "radius". 50 m: in the default Double Merge v1 and Halting Car v1 files
+    # every labelled (attended) car is within 44.5 m of the attending car at the last observed
+    # step (Double Merge at most 21.0 m, Halting Car at most 44.5 m; 495 labelled pairs).
+    neighbour_radius_m: float = 50.0
+    # neighbours of "knn". 16: in those files the labelled car is at most the 15th nearest
+    # (Halting Car v1; at most the 8th in Double Merge v1), so 16 keeps every labelled pair.
+    # Pedestrian crowds want far fewer (e.g. 8, or a radius of a few metres).
+    neighbour_k: int = 16
 
     def __post_init__(self) -> None:
         for name in ("embed_dim", "edge_hidden", "node_hidden", "attn_dim", "chunk_steps"):
@@ -142,6 +160,16 @@ class ModelConfig:
                 raise ValueError(f"ModelConfig.{name} must be > 0, got {getattr(self, name)}")
         if not self.attention_gain > 0:
             raise ValueError("ModelConfig.attention_gain must be > 0")
+        if self.neighbours not in NEIGHBOURS:
+            raise ValueError(
+                f"ModelConfig.neighbours must be one of {NEIGHBOURS}, got {self.neighbours!r}"
+            )
+        if not self.neighbour_radius_m > 0:
+            raise ValueError(
+                f"ModelConfig.neighbour_radius_m must be > 0, got {self.neighbour_radius_m}"
+            )
+        if self.neighbour_k < 1:
+            raise ValueError(f"ModelConfig.neighbour_k must be >= 1, got {self.neighbour_k}")
         if self.highway_steps < 0 or self.highway_steps == 1 or self.highway_horizon < 1:
             raise ValueError("ModelConfig.highway_steps must be 0 or >= 2, highway_horizon >= 1")
         if self.highway_attended and not self.highway_steps:
@@ -245,6 +273,12 @@ class TrainConfig:
     # the main cars stayed at constant velocity's (12.8 vs 13.0 mm) while the one-step loss
     # alone reached 6.5 mm in 15 epochs (constant acceleration: 5.1 mm). 1: equal weights.
     one_step_weight: float = 1.0
+    # Batch scenes of similar agent count together (predictor.data.BucketBatchSampler), each
+    # padded only to its batch's largest count: on ETH/UCY a split's windows have 1-57
+    # pedestrians (mean 11), and a batch padded to the largest pays for every padded slot.
+    # On by default: it draws the same random numbers as plain batching, so where every scene
+    # has the same agent count (the synthetic scenarios: 22 cars) the batches are identical.
+    bucket_batches: bool = True
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:

@@ -1,12 +1,20 @@
 """The smooth-attention trajectory predictor (Cao et al., ICRA 2022, Sec. "Method").
 
-A directed complete graph with self-loops over the N agents of a scene:
+A directed graph with self-loops over the N agents of a scene (the paper's: complete):
 
 - edge (i, j), i != j:  x_ij = F_interact(concat(s_i, s_j)),  o_ij = G_interact(x_ij)  (LSTM)
 - self-loop (i, i):     x_ii = F_self(concat(s_i^{t-1}, s_i^t)), o_ii = G_self(x_ii)   (LSTM)
-- attention:            theta_ij = softmax over present j != i of <F_attn(o_ii), F_attn(o_ij)>
+- attention:            theta_ij = softmax over present neighbours j of <F_attn(o_ii), F_attn(o_ij)>
 - node:                 o_i = G_pred(F_embed(s_i), sum_j theta_ij o_ij, o_ii)            (LSTM)
 - output:               (mu_i, Sigma_i) of the next position = F_pred(o_i)
+
+Graph (`ModelConfig.neighbours`, `predictor.graph`): every other agent ("all", the paper's),
+those within a radius, or the k nearest, chosen once per window (each edge keeps an LSTM state
+across the steps) and only between agents that are present in it. The edges are packed into
+one list for the batch, so the edge LSTM and the attention cost O(edges): a segment softmax
+over each agent's edges and an index_add for the attended sum; an agent without a present
+neighbour attends to nothing (sum 0). The attention is returned in the layout (..., N, N-1)
+(zero off the graph), which the losses and metrics read.
 
 Time indexing: the step at time t (t = 0 .. T-2) reads the states at t (and t-1 for the
 self-loop; at t = 0, or when the agent was absent at t-1, the previous state is the current one)
@@ -44,7 +52,8 @@ constant velocity. The model is then equivariant to rotating and translating a s
 network predicts the rest.
 
 Everything is batched over scenes, agents and edges; the only Python loop is over the time steps
-of the fed-back rollout. Absent agents are masked out of the attention.
+of the fed-back rollout. Absent agents have no edges, or (present at other steps of the window)
+are masked out of the attention while absent.
 """
 
 from __future__ import annotations
@@ -59,13 +68,14 @@ from torch import Tensor, nn
 
 from predictor.agent_frame import (
     AgentFrame,
-    agent_features,
     agent_frames,
-    edge_present,
+    own_features,
+    pair_features,
     rotate,
     rotate_tril,
 )
 from predictor.config import ModelConfig
+from predictor.graph import Graph, neighbour_graph, segment_softmax, segment_uniform
 from predictor.highway import (
     CROSS_FIT_FOLDS,
     agent_maps,
@@ -143,7 +153,7 @@ class StepOutputs:
     """Outputs of a block of S consecutive steps, time-first."""
 
     gaussian: Gaussian2D  # (S, B, N, 2) mean, (S, B, N, 3) tril: next-position predictions
-    attention: Tensor  # (S, B, N, N-1): theta_ij over the other agents j (edge order)
+    attention: Tensor  # (S, B, N, N-1): theta_ij over the other agents j, 0 off the graph
     state: RecurrentState
 
 
@@ -161,7 +171,8 @@ class ModelOutput:
     """Everything the losses and the evaluation need, batch-first.
 
     `attention` tensors are compact: entry [..., i, k] is the weight of agent i on its k-th
-    other agent (agents 0..N-1 without i, in order); `expand_attention` gives (..., N, N).
+    other agent (agents 0..N-1 without i, in order), zero where that agent is no neighbour of i
+    (`ModelConfig.neighbours`) or absent; `expand_attention` gives (..., N, N).
     The rollout fields are None when the pass made no rollout.
     """
 
@@ -208,13 +219,6 @@ def scene_origin(positions: Tensor, valid: Tensor, step: int) -> Tensor:
     mask = valid[:, step].unsqueeze(-1).to(positions.dtype)  # (B, N, 1)
     total = (positions[:, step] * mask).sum(dim=1)  # (B, 2)
     return total / mask.sum(dim=1).clamp(min=1.0)  # (B, 2)
-
-
-def masked_softmax(scores: Tensor, mask: Tensor) -> Tensor:
-    """Softmax over the last dim restricted to `mask`; rows without any True are all zero."""
-    lowest = torch.finfo(scores.dtype).min
-    weights = torch.softmax(scores.masked_fill(~mask, lowest), dim=-1)  # (..., K)
-    return weights * mask.to(scores.dtype)  # (..., K)
 
 
 class SmoothAttentionPredictor(nn.Module):
@@ -332,7 +336,7 @@ class SmoothAttentionPredictor(nn.Module):
         the model uses them). `one_step`/`attention` cover the observed part (t = 1 .. T_obs,
         theta^0 .. theta^{T_obs-1}).
         """
-        steps = self._prepare(positions, valid, num_observed, labels, roles)
+        steps = self._prepare(positions, valid, num_observed, labels, roles, num_observed)
         observed = self._block(steps, 0, num_observed, None)
         out = ModelOutput(
             one_step=observed.gaussian.time_first(), attention=observed.attention.transpose(0, 1)
@@ -347,7 +351,10 @@ class SmoothAttentionPredictor(nn.Module):
         num_observed: int,
         labels: Tensor | None,
         roles: Tensor | None = None,
+        graph_steps: int | None = None,
     ) -> _Steps:
+        """Time-first inputs of a pass, and the pass's neighbour graph, chosen from the first
+        `graph_steps` steps (None: all; `predict` reads only the observed ones)."""
         num_steps = positions.shape[1]
         if not 1 <= num_observed < num_steps:
             raise ValueError(f"num_observed must be in [1, {num_steps - 1}], got {num_observed}")
@@ -386,6 +393,14 @@ class SmoothAttentionPredictor(nn.Module):
             else None,
             roles=role_inputs,
             role_index=None if role_inputs is None else roles.long(),
+            graph=self._graph(positions[:, :graph_steps], valid[:, :graph_steps], num_observed),
+        )
+
+    def _graph(self, positions: Tensor, valid: Tensor, num_observed: int) -> Graph:
+        """The neighbour graph of the configured kind (predictor.graph) over (B, T', N) steps."""
+        cfg = self.config
+        return neighbour_graph(
+            positions, valid, num_observed, cfg.neighbours, cfg.neighbour_radius_m, cfg.neighbour_k
         )
 
     def _block(
@@ -540,15 +555,15 @@ class SmoothAttentionPredictor(nn.Module):
         """
         num_steps, batch, num_agents, _ = pos.shape
         cfg = self.config
-        tail, head = edge_index(num_agents, pos.device)  # (M,), (M,)
+        graph = steps.graph
         mask = present.unsqueeze(-1)  # (S, B, N, 1)
         if steps.frame is None:
             rel = (pos - steps.origin[None, :, None]) / cfg.position_scale_m  # (S, B, N, 2)
             rel = torch.where(mask, rel, torch.zeros_like(rel))  # (S, B, N, 2)
             step = torch.where(mask, (pos - prev_pos) / cfg.step_scale_m, torch.zeros_like(pos))
-            x_edge = self._edge_inputs(rel, head)  # (S, B, N, N-1, E)
+            x_edge = self._edge_inputs(rel, graph)  # (S, E, emb)
         else:
-            rel, step, x_edge = self._agent_inputs(pos, prev_pos, present, steps.frame, head)
+            rel, step, x_edge = self._agent_inputs(pos, prev_pos, present, steps.frame, graph)
             if cfg.acceleration_input:
                 accel = rotate(pos - 2 * prev_pos + prev2_pos, steps.frame[1], inverse=True)
                 accel = torch.where(mask, accel / self.offset_std, 0.0)  # (S, B, N, 2)
@@ -560,13 +575,13 @@ class SmoothAttentionPredictor(nn.Module):
             step = torch.cat([step, role], -1)
         x_self = self.f_self(torch.cat([own[..., :2], step], -1))  # (S, B, N, E)
         state = state or RecurrentState(None, None, None)
-        o_edge, h_edge = self.g_interact(x_edge.flatten(1, 3), state.edge)  # (S, B*M, H)
+        o_edge, h_edge = self.g_interact(x_edge, state.edge)  # (S, E, H) over the packed edges
         o_self, h_self = self.g_self(x_self.flatten(1, 2), state.self_loop)  # (S, B*N, H)
-        hidden = self.config.edge_hidden  # explicit: a scene of one agent has no edges
-        o_edge = o_edge.view(num_steps, batch, num_agents, num_agents - 1, hidden)  # (S,B,N,N-1,H)
+        together = graph.edge_present(present)  # (S, E) both ends present at the step
+        theta = self._attention(o_self, o_edge, together, labels, graph)  # (S, E)
+        attended = graph.sum_by_tail(theta.unsqueeze(-1) * o_edge)  # (S, B*N, H)
+        attended = attended.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
         o_self = o_self.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
-        theta = self._attention(o_self, o_edge, present, labels, head)  # (S, B, N, N-1)
-        attended = (theta.unsqueeze(-1) * o_edge).sum(-2)  # (S, B, N, H)
         node_in = torch.cat([self.f_embed(own), attended, o_self], -1)  # (S, B, N, E+2H)
         o_node, h_node = self.g_pred(node_in.flatten(1, 2), state.node)  # (S, B*N, Hn)
         raw = self._raw_outputs(o_node, anchor is not None)
@@ -579,7 +594,8 @@ class SmoothAttentionPredictor(nn.Module):
         else:
             base = pos + (pos - prev_pos) if cfg.mean_prior == "velocity" else pos  # (S, B, N, 2)
             gaussian = self._agent_gaussian(raw, base, steps.frame[1])
-        return StepOutputs(gaussian, theta, RecurrentState(h_edge, h_self, h_node))
+        attention = graph.to_compact(theta)  # (S, B, N, N-1), zero off the graph
+        return StepOutputs(gaussian, attention, RecurrentState(h_edge, h_self, h_node))
 
     def _raw_outputs(self, o_node: Tensor, anchored: bool = False) -> Tensor:
         """F_pred(o_node) (..., 5): mean offset (2) and Cholesky raw values (3); with
@@ -595,19 +611,20 @@ class SmoothAttentionPredictor(nn.Module):
         return torch.cat([offset, cov], -1)
 
     def _agent_inputs(
-        self, pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFrame, head: Tensor
+        self, pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFrame, graph: Graph
     ) -> tuple[Tensor, Tensor, Tensor]:
         """Standardised agent-frame inputs: own position (S, B, N, 2), own velocity (S, B, N, 2)
-        and the edge embeddings x_ij (S, B, N, N-1, E) of (own position, relative position
-        [, relative velocity]) in agent i's frame; zeros where an agent is absent."""
-        own, pair = agent_features(pos, prev_pos, present, frame, head)
-        own = (own - self.input_mean[:4]) / self.input_std[:4]  # (S, B, N, 4)
-        pair = (pair - self.input_mean[4:]) / self.input_std[4:]  # (S, B, N, N-1, 4)
+        and the edge embeddings x_ij (S, E, emb) of the graph's edges from (own position,
+        relative position [, relative velocity]) in agent i's frame; zeros where an agent (of an
+        edge: either agent) is absent."""
+        own = own_features(pos, prev_pos, present, frame)  # (S, B, N, 4)
+        own = (own - self.input_mean[:4]) / self.input_std[:4]
         own = torch.where(present.unsqueeze(-1), own, 0.0)
-        both = edge_present(present, head)  # (S, B, N, N-1)
-        pair = torch.where(both.unsqueeze(-1), pair, 0.0)
+        pair = pair_features(pos, prev_pos, present, frame, graph.tail, graph.head)  # (S, E, 4)
+        pair = (pair - self.input_mean[4:]) / self.input_std[4:]
+        pair = torch.where(graph.edge_present(present).unsqueeze(-1), pair, 0.0)
         width = 4 if self.config.edge_velocity else 2
-        own_per_edge = own[..., :2].unsqueeze(3).expand(*pair.shape[:-1], 2)
+        own_per_edge = own[..., :2].flatten(1, 2).index_select(1, graph.tail)  # (S, E, 2)
         x_edge = self.f_interact(torch.cat([own_per_edge, pair[..., :width]], -1))
         return own[..., :2], own[..., 2:], x_edge
 
@@ -632,10 +649,10 @@ class SmoothAttentionPredictor(nn.Module):
         offset_scale="deviation") from (training) scenes (B, T, N, 2), (B, T, N).
 
         Features are those the model sees (agent frames as in `agent_frames`), over present
-        agent-steps (edges: both agents present). `offset_std` is the RMS per axis of the
-        agent-frame one-step deviation from constant velocity, p^{t+1} - 2 p^t + p^{t-1}
-        (zero mean by construction, so a zero output stays constant velocity; also the unit of
-        the acceleration input, `acceleration_input`). `anchor_std`
+        agent-steps (edges: the model's graph, both agents present). `offset_std` is the RMS
+        per axis of the agent-frame one-step deviation from constant velocity,
+        p^{t+1} - 2 p^t + p^{t-1} (zero mean by construction, so a zero output stays constant
+        velocity; also the unit of the acceleration input, `acceleration_input`). `anchor_std`
         (rollout_prior "anchored") is the RMS per axis of the agent-frame velocity change since
         the last observed step, v^t - v^{T_obs-1}, over the predicted steps. With
         `highway_steps` the highway's maps are fitted too (`_fit_highway`; roles (B, N) choose
@@ -647,10 +664,12 @@ class SmoothAttentionPredictor(nn.Module):
         no_roles = torch.zeros(valid.shape[0], valid.shape[2], dtype=torch.long)  # nor roles
         steps = self._prepare(positions, valid, num_observed, no_labels, no_roles)
         present = steps.present
-        if self.config.standardise:
-            _, head = edge_index(positions.shape[2], positions.device)
-            own, pair = agent_features(steps.pos, steps.prev_pos, present, steps.frame, head)
-            own, pair = own[present], pair[edge_present(present, head)]  # (K, 4), (K2, 4)
+        if self.config.standardise:  # over present agent-steps and the graph's present edges
+            graph = steps.graph
+            own = own_features(steps.pos, steps.prev_pos, present, steps.frame)[present]  # (K, 4)
+            pair = pair_features(
+                steps.pos, steps.prev_pos, present, steps.frame, graph.tail, graph.head
+            )[graph.edge_present(present)]  # (K2, 4)
             pair_mean, pair_std = pair.new_zeros(4), pair.new_ones(4)  # no pairs: identity
             if len(pair) >= 2:  # (scenes of one agent have no pairs to measure)
                 pair_mean, pair_std = pair.mean(0), pair.std(0)
@@ -717,45 +736,49 @@ class SmoothAttentionPredictor(nn.Module):
             self.offset_std.fill_(cfg.step_scale_m)
             self.anchor_std.fill_(cfg.step_scale_m)
 
-    def _edge_inputs(self, rel: Tensor, head: Tensor) -> Tensor:
-        """x_ij = F_interact(concat(s_i, s_j - s_i)), all edges: (S, B, N, 2) -> (S, B, N, N-1, E).
+    def _edge_inputs(self, rel: Tensor, graph: Graph) -> Tensor:
+        """x_ij = F_interact(concat(s_i, s_j - s_i)) of the graph's edges: (S, B, N, 2) ->
+        (S, E, emb).
 
         s_i is the position at `position_scale_m`, s_j - s_i the offset at `interaction_scale_m`.
 
         The linear layer is split into a tail part and a head part, evaluated per agent and
-        added per edge, which is exact and avoids a matmul over the N*(N-1) edges.
+        added per edge, which is exact and avoids a matmul over the edges.
         """
         linear = self.f_interact[0]
         gain = self.config.position_scale_m / self.config.interaction_scale_m
         w_tail, w_rel = linear.weight[:, :2], linear.weight[:, 2:] * gain  # (E, 2), (E, 2)
-        per_tail = F.linear(rel, w_tail - w_rel, linear.bias)  # (S, B, N, E)
-        per_head = F.linear(rel, w_rel)  # (S, B, N, E)
-        shape = (*rel.shape[:2], rel.shape[2], rel.shape[2] - 1, per_head.shape[-1])
-        heads = per_head.index_select(2, head).view(shape)  # (S, B, N, N-1, E)
-        return self.f_interact[1](per_tail.unsqueeze(-2) + heads)  # (S, B, N, N-1, E)
+        per_tail = F.linear(rel, w_tail - w_rel, linear.bias).flatten(1, 2)  # (S, B*N, emb)
+        per_head = F.linear(rel, w_rel).flatten(1, 2)  # (S, B*N, emb)
+        summed = per_tail.index_select(1, graph.tail) + per_head.index_select(1, graph.head)
+        return self.f_interact[1](summed)  # (S, E, emb)
 
     def _attention(
-        self, o_self: Tensor, o_edge: Tensor, present: Tensor, labels: Tensor | None, head: Tensor
+        self,
+        o_self: Tensor,
+        o_edge: Tensor,
+        together: Tensor,
+        labels: Tensor | None,
+        graph: Graph,
     ) -> Tensor:
-        """theta (S, B, N, N-1) over present other agents; zero rows for absent agents."""
-        shape = o_edge.shape[:-1]  # (S, B, N, N-1)
-        others = present.index_select(-1, head).view(shape)  # (S, B, N, N-1) head j present
-        mask = others & present.unsqueeze(-1)  # (S, B, N, N-1) tail i present too
+        """theta (S, E) of each agent over its graph neighbours present at the step (`together`
+        (S, E): both ends present); an agent without one gets zeros. o_self (S, B*N, H),
+        o_edge (S, E, H), labels (S, B, N) (oracle)."""
         mode = self.config.attention_mode
         if mode == "learned":
             # <F_attn(o_ii), W o_ij + b> = <W^T F_attn(o_ii), o_ij> + <F_attn(o_ii), b>; the
             # last term is the same for every j of row i and cancels in the softmax, so F_attn
-            # need not be applied to the N*(N-1) edge outputs (same theta, far cheaper).
-            query = self.f_attn(o_self) @ self.f_attn.weight  # (S, B, N, H)
-            scores = (o_edge * query.unsqueeze(-2)).sum(-1) * self.config.attention_gain
-            return masked_softmax(scores, mask)
-        uniform = masked_softmax(torch.zeros(shape, device=o_edge.device), mask)  # (S,B,N,N-1)
+            # need not be applied to the edge outputs (same theta, far cheaper).
+            query = self.f_attn(o_self) @ self.f_attn.weight  # (S, B*N, H)
+            scores = (o_edge * query.index_select(1, graph.tail)).sum(-1)  # (S, E)
+            return segment_softmax(scores * self.config.attention_gain, together, graph)
+        uniform = segment_uniform(together, graph, o_edge.dtype)  # (S, E)
         if mode == "uniform":
             return uniform
-        heads = head.view(present.shape[-1], -1)  # (N, N-1) index of the k-th other agent
-        onehot = (heads == labels.unsqueeze(-1)) & mask  # (S, B, N, N-1)
-        labelled = onehot.any(-1, keepdim=True)  # (S, B, N, 1)
-        return torch.where(labelled, onehot.to(uniform.dtype), uniform)  # (S, B, N, N-1)
+        label = labels.flatten(1, 2).index_select(1, graph.tail)  # (S, E) the tail's label
+        onehot = (graph.head_slot() == label) & together  # (S, E)
+        labelled = graph.sum_by_tail(onehot.to(uniform.dtype)) > 0  # (S, B*N)
+        return torch.where(labelled.index_select(1, graph.tail), onehot.to(uniform.dtype), uniform)
 
     def _gaussian(self, raw: Tensor, base: Tensor) -> Gaussian2D:
         """Next-position Gaussian from the F_pred output (..., 5) and the base of the mean [m]."""
@@ -783,3 +806,4 @@ class _Steps:
     roles: Tensor | None = None  # (B, N, R) one-hot agent roles (num_roles > 0) or None
     role_index: Tensor | None = None  # (B, N) int64 agent roles (num_roles > 0) or None
     scenes: Tensor | None = None  # (B,) int64 training-split indices (cross-fitted highway)
+    graph: Graph | None = None  # the pass's neighbour graph (fixed over its steps)

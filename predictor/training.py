@@ -290,7 +290,13 @@ def build_state(
             scenes.positions, scenes.valid, train_set.meta.num_observed, scenes.roles
         )
     optimizer = make_optimizer(model, train_cfg)
-    loader = make_loader(train_set, train_cfg.batch_size, shuffle=True, seed=train_cfg.seed)
+    loader = make_loader(
+        train_set,
+        train_cfg.batch_size,
+        shuffle=True,
+        seed=train_cfg.seed,
+        bucket=train_cfg.bucket_batches,
+    )
     return RunState(model, optimizer, loader)
 
 

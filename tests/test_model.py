@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from predictor.config import ModelConfig, make_configs
+from predictor.graph import neighbour_graph
 from predictor.losses import attention_tv
 from predictor.model import Gaussian2D, SmoothAttentionPredictor, edge_index, expand_attention
 
@@ -199,7 +200,9 @@ def test_split_edge_layer_equals_the_concatenated_input():
     direct = model.f_interact(
         torch.cat([rel[:, :, tail], (rel[:, :, head] - rel[:, :, tail]) * gain], -1)
     )  # (S, B, M, E)
-    torch.testing.assert_close(model._edge_inputs(rel, head).flatten(2, 3), direct)
+    graph = neighbour_graph(rel.transpose(0, 1), torch.ones(2, 3, 5, dtype=torch.bool), 3)
+    packed = model._edge_inputs(rel, graph)  # (S, B*M, E): the complete graph, scene-major
+    torch.testing.assert_close(packed, direct.flatten(1, 2))
 
 
 def test_attention_gain_multiplies_the_scores_before_the_softmax():

@@ -229,6 +229,22 @@ def test_closed_stdout_ends_quietly(smoke):
         ),
         ("evaluate.py", ["--baseline", "magic", "--data", "{data}"], "invalid choice"),
         ("evaluate.py", ["--run", "{foreign}", "--data", "{data}"], "does not exist"),
+        (
+            "train.py",
+            ["--data", "{data}", "--out", "{tmp}/r", "--neighbours", "grid"],
+            "invalid choice",
+        ),
+        (
+            "train.py",
+            ["--data", "{data}", "--out", "{tmp}/r", "--neighbour-radius", "0"],
+            "ModelConfig.neighbour_radius_m must be > 0, got 0.0",
+        ),
+        (
+            "train.py",
+            ["--data", "{data}", "--out", "{tmp}/r", "--neighbour-k", "0"],
+            "ModelConfig.neighbour_k must be >= 1, got 0",
+        ),
+        ("train.py", ["--data", "{data}", "--out", "{tmp}/r", "--neighbour-k", "2.5"], "int"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(smoke, tmp_path, capsys, tool, args, message):
@@ -266,6 +282,24 @@ def test_checkpoint_missing_a_config_field_is_rejected(smoke, tmp_path: Path):
     torch.save(checkpoint, old)
     with pytest.raises(CheckpointError, match="lacks field"):
         load_model(old)
+
+
+def test_train_keeps_the_neighbour_graph_in_the_checkpoint(smoke, tmp_path: Path, capsys):
+    import torch
+
+    from predictor.evaluation import load_model
+
+    run = tmp_path / "radius"
+    args = ["--data", smoke["data"], "--out", run, "--epochs", "1", "--no-progress", *TINY]
+    graph = ["--neighbours", "radius", "--neighbour-radius-m", "15", "--bucket-batches", "no"]
+    load_tool("train.py").main([str(a) for a in [*args, *graph]])
+    assert "trained ours for 1 epochs" in capsys.readouterr().out
+    stored = torch.load(run / "best.pt", weights_only=True)
+    assert stored["model_config"]["neighbours"] == "radius"
+    assert stored["model_config"]["neighbour_radius_m"] == 15.0
+    assert stored["train_config"]["bucket_batches"] is False
+    model, _ = load_model(run / "best.pt")
+    assert (model.config.neighbours, model.config.neighbour_radius_m) == ("radius", 15.0)
 
 
 def write_other_dataset(path: Path) -> Path:

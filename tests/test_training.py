@@ -270,3 +270,16 @@ def test_unwritable_run_directory_is_one_clear_error(
         train(braking_file, model_cfg, train_cfg, run, progress=False)
     assert str(info.value) == f"cannot write {run / 'config.json'}: Permission denied"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["braking.h5"]
+
+
+def test_bucketing_changes_nothing_where_every_scene_has_the_same_agent_count(
+    braking_file: Path, tmp_path: Path
+):
+    model_cfg, train_cfg = tiny_configs(epochs=2)
+    assert train_cfg.bucket_batches  # the default
+    plain = make_configs(
+        "ours", TINY_MODEL, epochs=2, batch_size=3, seed=0, lr=3e-3, bucket_batches=False
+    )
+    train(braking_file, model_cfg, train_cfg, tmp_path / "bucketed", progress=False)
+    train(braking_file, plain[0], plain[1], tmp_path / "plain", progress=False)
+    assert_same_weights(weights(tmp_path / "bucketed"), weights(tmp_path / "plain"))

@@ -20,6 +20,7 @@ from predictor.config import (
     LR_SCHEDULES,
     MEAN_LOSSES,
     MEAN_PRIORS,
+    NEIGHBOURS,
     OFFSET_SCALES,
     PRESETS,
     ROLLOUT_FEEDS,
@@ -57,6 +58,9 @@ MODEL_FLAGS = (
     "highway_steps",
     "highway_horizon",
     "highway_attended",
+    "neighbours",
+    "neighbour_radius_m",
+    "neighbour_k",
 )
 TRAIN_FLAGS = (
     "epochs",
@@ -77,6 +81,7 @@ TRAIN_FLAGS = (
     "observed_jitter",
     "main_agent_weight",
     "one_step_weight",
+    "bucket_batches",
 )
 CHOICES = {  # string fields with a fixed set of values
     "mean_prior": MEAN_PRIORS,
@@ -86,6 +91,7 @@ CHOICES = {  # string fields with a fixed set of values
     "lr_schedule": LR_SCHEDULES,
     "rollout_feed": ROLLOUT_FEEDS,
     "mean_loss": MEAN_LOSSES,
+    "neighbours": NEIGHBOURS,
 }
 
 
