@@ -446,12 +446,49 @@ def config_to_dict(config: ModelConfig | TrainConfig) -> dict[str, Any]:
     return asdict(config)
 
 
+# Fields added after stored configs became strict (checkpoints, run directories), each with the
+# value that does what the code did before the field existed (the paper's behaviour: every one
+# was added as a switch that is off by default). A stored config lacking one of them takes this
+# value, never a current default that may differ; lacking any other field is still an error.
+ADDED_MODEL_FIELDS: dict[str, Any] = {
+    "frame": "scene",
+    "standardise": False,
+    "edge_velocity": False,
+    "offset_scale": "step",
+    "detach_covariance": False,
+    "rollout_prior": "previous",
+    "num_roles": 0,
+    "acceleration_input": False,
+    "attention_gain": 1.0,
+    "highway_steps": 0,
+    "highway_horizon": 45,
+    "highway_attended": False,
+    "neighbours": "all",
+    "neighbour_radius_m": 50.0,
+    "neighbour_k": 16,
+}
+ADDED_TRAIN_FIELDS: dict[str, Any] = {
+    "lr_schedule": "constant",
+    "lr_final_ratio": 0.01,
+    "rollout_feed": "sample",
+    "mean_loss": "nll",
+    "one_step_needs_previous": False,
+    "weight_decay": 0.0,
+    "observed_jitter": 0,
+    "main_agent_weight": 1.0,
+    "one_step_weight": 1.0,
+    "bucket_batches": False,  # the batches of every split padded to its largest window
+}
+
+
 def model_config_from_dict(values: dict[str, Any]) -> ModelConfig:
     """Rebuild a ModelConfig written by `config_to_dict`; unknown or missing keys are an error
-    (a stored model must not silently pick up a newer default)."""
-    return _build(ModelConfig, dict(values), complete=True)
+    (a stored model must not silently pick up a newer default), except the fields of
+    `ADDED_MODEL_FIELDS`, which older versions did not write."""
+    return _build(ModelConfig, {**ADDED_MODEL_FIELDS, **values}, complete=True)
 
 
 def train_config_from_dict(values: dict[str, Any]) -> TrainConfig:
-    """Rebuild a TrainConfig written by `config_to_dict`; unknown or missing keys are an error."""
-    return _build(TrainConfig, dict(values), complete=True)
+    """Rebuild a TrainConfig written by `config_to_dict`; unknown or missing keys are an error,
+    except the fields of `ADDED_TRAIN_FIELDS`."""
+    return _build(TrainConfig, {**ADDED_TRAIN_FIELDS, **values}, complete=True)

@@ -35,6 +35,8 @@ from tqdm import tqdm
 
 from predictor import __version__
 from predictor.config import (
+    ADDED_MODEL_FIELDS,
+    ADDED_TRAIN_FIELDS,
     ModelConfig,
     TrainConfig,
     config_to_dict,
@@ -371,7 +373,12 @@ def resume_configs(
     out = Path(out_dir)
     check_out_dir(out, resume=True, overwrite=False)
     checkpoint = read_checkpoint(out / "last.pt")
-    stored = {**checkpoint["model_config"], **checkpoint["train_config"]}
+    stored = {  # older checkpoints lack the added fields: they take their former values
+        **ADDED_MODEL_FIELDS,
+        **checkpoint["model_config"],
+        **ADDED_TRAIN_FIELDS,
+        **checkpoint["train_config"],
+    }
     for name, value in (changes or {}).items():
         if name not in stored:
             raise RunError(f"unknown setting {name!r}")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -282,6 +283,35 @@ def test_checkpoint_missing_a_config_field_is_rejected(smoke, tmp_path: Path):
     torch.save(checkpoint, old)
     with pytest.raises(CheckpointError, match="lacks field"):
         load_model(old)
+
+
+def test_checkpoint_of_an_older_version_loads_with_the_behaviour_it_was_trained_with(
+    smoke, tmp_path: Path
+):
+    import torch
+
+    from predictor.config import ADDED_MODEL_FIELDS, ADDED_TRAIN_FIELDS
+    from predictor.evaluation import load_model
+    from predictor.training import resume_configs
+
+    checkpoint = torch.load(smoke["run"] / "best.pt", weights_only=True)
+    model, _ = load_model(smoke["run"] / "best.pt")
+    assert {"neighbours", "highway_attended"} <= set(ADDED_MODEL_FIELDS)
+    assert "bucket_batches" in ADDED_TRAIN_FIELDS
+    for name in ("neighbours", "neighbour_k", "highway_attended", "attention_gain"):
+        del checkpoint["model_config"][name]  # as written before these fields existed
+    for name in ("bucket_batches", "one_step_weight"):
+        del checkpoint["train_config"][name]
+    old = tmp_path / "old"
+    shutil.copytree(smoke["run"], old)
+    torch.save(checkpoint, old / "best.pt")
+    torch.save(checkpoint, old / "last.pt")
+    restored, _ = load_model(old / "best.pt")
+    assert restored.config == model.config  # the smoke run used the paper's values
+    for name, value in model.state_dict().items():
+        torch.testing.assert_close(restored.state_dict()[name], value)
+    _, train_config = resume_configs(old, {"epochs": 3})
+    assert train_config.bucket_batches is False and train_config.epochs == 3
 
 
 def test_train_keeps_the_neighbour_graph_in_the_checkpoint(smoke, tmp_path: Path, capsys):
