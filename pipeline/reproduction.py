@@ -149,12 +149,12 @@ def run_dir(
     out_dir: Path, spec: DataSpec, variant: str, seed: int, epochs: int, preset: str = "paper"
 ) -> Path:
     """runs/<stem>/<variant>/seed<k>_ep<E>_<digest of the model and training configs>."""
-    from predictor.config import config_to_dict
+    from predictor.config import config_key
 
     base = out_dir / "runs" / spec.stem / variant
     if variant in BASELINES:
         return base
-    configs = [config_to_dict(c) for c in run_configs(variant, seed, epochs, preset)]
+    configs = [config_key(c) for c in run_configs(variant, seed, epochs, preset)]
     return base / f"seed{seed}_ep{epochs}_{digest(configs)}"
 
 

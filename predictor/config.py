@@ -481,6 +481,15 @@ ADDED_TRAIN_FIELDS: dict[str, Any] = {
 }
 
 
+def config_key(config: ModelConfig | TrainConfig) -> dict[str, Any]:
+    """`config_to_dict` without the added fields (`ADDED_MODEL_FIELDS`, `ADDED_TRAIN_FIELDS`)
+    that hold their former values: what identifies a run's configuration (cache keys), so a
+    later version that adds a switch leaves the keys of the runs that do not use it unchanged."""
+    added = ADDED_MODEL_FIELDS if isinstance(config, ModelConfig) else ADDED_TRAIN_FIELDS
+    values = config_to_dict(config)
+    return {k: v for k, v in values.items() if k not in added or added[k] != v}
+
+
 def model_config_from_dict(values: dict[str, Any]) -> ModelConfig:
     """Rebuild a ModelConfig written by `config_to_dict`; unknown or missing keys are an error
     (a stored model must not silently pick up a newer default), except the fields of

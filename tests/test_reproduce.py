@@ -454,3 +454,17 @@ def test_settings_use_the_v1_scenarios():
     scenarios = {name: SETTING_BY_NAME[name].scenario for name in SETTINGS}
     assert {s for n, s in scenarios.items() if n.startswith("dm_")} == {"double_merge_v1"}
     assert {s for n, s in scenarios.items() if n.startswith("hc_")} == {"halting_car_v1"}
+
+
+def test_cache_keys_leave_out_added_switches_at_their_former_values():
+    from predictor.config import ADDED_MODEL_FIELDS, config_key, config_to_dict, make_configs
+
+    model, train = make_configs("ours", preset="paper", seed=0, epochs=5)
+    key = config_key(model)
+    # the paper's model: every added switch holds its former value, so none is in the key, and
+    # the key is what a version before those switches would have written
+    assert not set(ADDED_MODEL_FIELDS) & set(key)
+    assert key == {k: v for k, v in config_to_dict(model).items() if k not in ADDED_MODEL_FIELDS}
+    assert "bucket_batches" in config_key(train)  # on here: not its former value (off)
+    radius, _ = make_configs("ours", {"neighbours": "radius"}, preset="paper")
+    assert config_key(radius)["neighbours"] == "radius"  # a switch in use stays in the key
