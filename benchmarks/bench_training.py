@@ -64,6 +64,7 @@ def synthetic_batch(scenes: int, steps: int, agents: int, seed: int) -> Batch:
         case=torch.zeros(scenes, dtype=torch.long),
         seed=torch.arange(scenes),
         roles=torch.zeros(scenes, agents, dtype=torch.long),
+        focal=torch.arange(agents).expand(scenes, agents) < 2,  # two scored cars, as the scenarios
     )
 
 
@@ -118,10 +119,10 @@ def bench_threads(preset: str, threads: int, args) -> dict:
     train = synthetic_batch(args.scenes, args.steps, args.agents, seed=1)
     val = synthetic_batch(args.val_scenes, args.steps, args.agents, seed=2)
     if model_cfg.frame == "agent":
-        model.fit_normalisation(train.positions, train.valid, args.observed)
+        model.fit_normalisation(train.positions, train.valid, args.observed, train.roles)
     size = train_cfg.batch_size
     batches = [
-        Batch(**{k: v[i : i + size] for k, v in vars(train).items()})
+        Batch(**{k: None if v is None else v[i : i + size] for k, v in vars(train).items()})
         for i in range(0, args.scenes, size)
     ]
     train_step(model, optimizer, batches[0], args.observed, train_cfg)  # warm-up

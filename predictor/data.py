@@ -23,9 +23,8 @@ from torch.utils.data import DataLoader, Dataset, RandomSampler, Sampler, Sequen
 
 from predictor.format import DatasetMeta, FormatError, TrajectorySet, read_meta, read_split
 
-# agent slots a dataset has at least: the model builds the N(N-1) directed edges between slots
-# and fails on a split of one slot (no edges, e.g. ETH/UCY windows of one pedestrian), so such
-# a split gets an invalid, non-focal second slot, which changes no prediction and no metric
+# agent slots a dataset has at least: a split of one slot (e.g. ETH/UCY windows of one
+# pedestrian) gets an invalid, non-focal second slot, which changes no prediction and no metric
 MIN_AGENT_SLOTS = 2
 # the agent axis of each Batch field that has one, and the value of an absent (padded) slot
 AGENT_AXES = {"states": 2, "valid": 2, "attention": 2, "roles": 1, "focal": 1}
