@@ -101,6 +101,11 @@ class ModelConfig:
     # 0: no role input; ROLES_FROM_DATA (-1): as many as the training data's role names, set
     # when training starts (the checkpoint stores the number).
     num_roles: int = 0
+    # With num_roles > 0, whether the roles are also inputs of the network (F_embed, F_self);
+    # off, they only choose the highway's map per role. The synthetic files' roles are colours
+    # (Double Merge: main_green, main_brown), and which colour is ahead is the case, so in the
+    # rare case a role input carries the common case's behaviour.
+    role_input: bool = True
     # The agent's own acceleration p^t - 2 p^{t-1} + p^{t-2} (agent frame, in units of the
     # training split's RMS one-step deviation `offset_std`) as an input of F_self next to its
     # velocity. Without it the model must difference consecutive velocity inputs, where a
@@ -458,6 +463,7 @@ ADDED_MODEL_FIELDS: dict[str, Any] = {
     "detach_covariance": False,
     "rollout_prior": "previous",
     "num_roles": 0,
+    "role_input": True,
     "acceleration_input": False,
     "attention_gain": 1.0,
     "highway_steps": 0,

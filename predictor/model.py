@@ -230,7 +230,8 @@ class SmoothAttentionPredictor(nn.Module):
             raise ValueError("num_roles=-1 (from the data) must be resolved first (resolve_roles)")
         self.config = config
         emb, hid = config.embed_dim, config.edge_hidden
-        roles = max(config.num_roles, 0)  # one-hot role inputs of F_embed and F_self
+        # one-hot role inputs of F_embed and F_self
+        roles = max(config.num_roles, 0) if config.role_input else 0
         self.f_embed = nn.Sequential(nn.Linear(2 + roles, emb), nn.ReLU())
         accel = 2 if config.acceleration_input else 0  # own acceleration inputs of F_self
         self.f_self = nn.Sequential(nn.Linear(4 + accel + roles, emb), nn.ReLU())
@@ -391,7 +392,7 @@ class SmoothAttentionPredictor(nn.Module):
             frame=agent_frames(positions, valid, num_observed)
             if self.config.frame == "agent"
             else None,
-            roles=role_inputs,
+            roles=role_inputs if self.config.role_input else None,
             role_index=None if role_inputs is None else roles.long(),
             graph=self._graph(positions[:, :graph_steps], valid[:, :graph_steps], num_observed),
         )

@@ -111,3 +111,29 @@ def test_evaluation_refuses_data_with_other_role_names(make_dataset_file, tmp_pa
     train(train_file, model_cfg, train_cfg, tmp_path / "run", progress=False)
     with pytest.raises(EvaluationError, match="reads agent roles"):
         evaluate_run(tmp_path / "run", other)
+
+
+def test_without_role_input_the_network_ignores_roles_but_the_highway_reads_them():
+    positions, valid = moving_scene(batch=2, steps=12)
+    roles = torch.tensor([[0, 1, 2, 2], [1, 0, 2, 2]])
+    swapped = torch.tensor([[1, 0, 2, 2], [0, 1, 2, 2]])
+    anchored = {**AGENT, "offset_scale": "deviation", "rollout_prior": "anchored"}
+    outputs = {}
+    for role_input in (True, False):
+        config = ModelConfig(**SMALL, **anchored, num_roles=3, role_input=role_input)
+        model = SmoothAttentionPredictor(config)
+        randomise(model, seed=2)
+        columns = 2 + (3 if role_input else 0)
+        assert model.f_embed[0].in_features == columns
+        outputs[role_input] = [
+            model.predict(positions, valid, 6, roles=r).rollout.mean for r in (roles, swapped)
+        ]
+    assert (outputs[True][0] - outputs[True][1]).abs().max() > 1e-4  # roles are inputs
+    torch.testing.assert_close(outputs[False][0], outputs[False][1])  # roles read by nothing
+    config = ModelConfig(**SMALL, **anchored, num_roles=3, role_input=False, highway_steps=3)
+    model = SmoothAttentionPredictor(config)
+    randomise(model, seed=2)
+    with torch.no_grad():  # a different highway map per role
+        model.highway_weight.copy_(0.1 * torch.randn(model.highway_weight.shape))
+    out = [model.predict(positions, valid, 6, roles=r).rollout.mean for r in (roles, swapped)]
+    assert (out[0] - out[1]).abs().max() > 1e-4  # the highway still picks its map by role

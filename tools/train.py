@@ -53,6 +53,7 @@ MODEL_FLAGS = (
     "detach_covariance",
     "rollout_prior",
     "num_roles",
+    "role_input",
     "acceleration_input",
     "attention_gain",
     "highway_steps",
