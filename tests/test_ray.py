@@ -2,13 +2,14 @@
 Ray writes the same bytes as the local backend; a reproduction sweep through Ray gives the same
 results and cache as the local backend, resumes from that cache, and reports a job that raises
 while the others finish; a task whose worker dies is retried, one that dies twice is reported;
-a missing Ray is one clear line. Skipped where Ray is not installed (`pip install -e '.[ray]'`;
-`make test` installs it)."""
+Ctrl-C cancels a Ray sweep and its rerun resumes; a missing Ray is one clear line. Skipped where
+Ray is not installed (`pip install -e '.[ray]'`; `make test` installs it)."""
 
 from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -171,6 +172,43 @@ def test_reproduce_cli_through_ray(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     assert "1 runs (1 trained, 0 resumed, 0 reused, 0 failed)" in done.stdout
     assert (cache / "RESULTS.md").is_file() and len(evaluations(cache)) == 1
+
+
+@pytest.mark.slow
+def test_ctrl_c_cancels_a_ray_sweep_and_the_rerun_resumes(tmp_path):
+    """Ctrl-C to the process group (the command, its Ray instance; the workers have their own
+    groups) once every run has finished an epoch: exit 130, one line, no result; the same
+    command then resumes both runs from their last.pt."""
+    cache = tmp_path / "cache"
+    argv = ["--quick", "--settings", "hc_go", "--variants", "ours", "--seeds", "2"]
+    argv += ["--epochs", "10", "--backend", "ray", "--jobs", "2", "--out-dir", str(cache)]
+    command = [sys.executable, str(REPO_ROOT / "tools" / "reproduce.py"), *argv]
+    env = {k: v for k, v in tool_env().items() if k != "RAY_ADDRESS"}
+    process = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + 300
+    while len(list(cache.glob("runs/*/ours/*/last.pt"))) < 2:
+        if process.poll() is not None or time.monotonic() > deadline:
+            process.kill()
+            pytest.fail(f"no epoch finished in time: {process.communicate()[1][-2000:]}")
+        time.sleep(0.05)
+    os.killpg(process.pid, signal.SIGINT)
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 130, err[-2000:]
+    assert err.splitlines()[-1].startswith("error: interrupted; finished runs are cached")
+    assert out == "" and "Traceback" not in err and not list(cache.rglob("eval.json"))
+    resumed = subprocess.run(command, capture_output=True, text=True, env=env, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert "2 runs (0 trained, 2 resumed, 0 reused, 0 failed)" in resumed.stdout
+    for metrics in cache.glob("runs/*/ours/*/metrics.jsonl"):
+        epochs = [json.loads(line)["epoch"] for line in metrics.read_text().splitlines()]
+        assert epochs == list(range(1, 11))  # each epoch once: none lost, none repeated
 
 
 def test_missing_ray_is_one_line_exit_2(monkeypatch, tmp_path, capsys):
