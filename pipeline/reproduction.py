@@ -424,20 +424,19 @@ class Invocation:
     runs: int  # jobs run (trained or resumed; const_vel: evaluated)
 
 
-class Runner:
-    """Runs a function over items on a backend (see the module); Ray is started on first use
-    and shut down when the `stack` closes."""
+class Runner(contextlib.ExitStack):
+    """Runs a function over items on a backend (see the module); a context manager: Ray is
+    started on first use and shut down on leaving."""
 
-    def __init__(
-        self, backend: str, jobs: int, address: str | None, stack: contextlib.ExitStack
-    ) -> None:
+    def __init__(self, backend: str, jobs: int, address: str | None = None) -> None:
+        super().__init__()
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
         if backend == "ray":
             from pipeline.ray_backend import require_ray
 
             require_ray()  # fail before any work, even if the cache has everything
-        self.backend, self.jobs, self.address, self.stack = backend, jobs, address, stack
+        self.backend, self.jobs, self.address = backend, jobs, address
         self.connected = False
 
     def map(self, function, items: list, desc: str, deadline: float | None = None) -> list:
@@ -451,7 +450,7 @@ class Runner:
         from pipeline.ray_backend import map_settled, ray_session
 
         if not self.connected:
-            self.stack.enter_context(ray_session(self.address, self.jobs))
+            self.enter_context(ray_session(self.address, self.jobs))
             self.connected = True
         bar = tqdm(total=len(items), desc=desc, unit="job", file=sys.stderr, dynamic_ncols=True)
         with bar:
@@ -475,7 +474,7 @@ def make_datasets(runner: Runner, items: list[tuple[DataSpec, str]]) -> list[str
     statuses = [next(made) if item in missing else ensure_dataset(item) for item in items]
     for (_, path), status in zip(items, statuses):
         if isinstance(status, TaskFailed):
-            raise RuntimeError(f"generating {path} failed: {status.error}")
+            raise RuntimeError(f"dataset {path} on a Ray worker: {status.error}")
     return statuses
 
 
@@ -506,8 +505,7 @@ def execute(
     all_jobs = unique(
         [j for s in protocol.settings for j in setting_jobs(protocol, s, out_dir, store)]
     )
-    with contextlib.ExitStack() as stack:
-        runner = Runner(backend, jobs, address, stack)
+    with Runner(backend, jobs, address) as runner:
         data_status = make_datasets(runner, items)
         # Seed-major order: an interrupted reproduction leaves whole seeds (every setting and
         # variant), so a rerun with a smaller seed count reports from the cache alone.
@@ -586,8 +584,7 @@ def reproduce(
 
     Raises FileExistsError if the report exists and not `overwrite`, ReproductionError for an
     unusable cache entry, RuntimeError if a dataset cannot be made, RayUnavailableError if Ray
-    is asked for but not installed; KeyboardInterrupt leaves
-    every finished run cached.
+    is asked for but not installed; KeyboardInterrupt leaves every finished run cached.
     """
     from pipeline.report.document import ReportInput, write_report
 
