@@ -22,23 +22,37 @@ results are in the cache or the store is not run again; the report reads both. M
 committed, so a protocol can be completed over several sittings or machines. A time budget
 (`budget_s`) starts no run after it expires; running ones finish, the rest wait for a rerun.
 
+Backends (`backend`): "local" runs `jobs` spawned processes here (pipeline.pool); "ray" runs
+each missing dataset and each job as a Ray task of `RUN_THREADS` CPUs on the cluster at
+`address` (else RAY_ADDRESS, else a local Ray instance with `jobs` CPUs; pipeline.ray_backend),
+handed out as CPUs free up and gathered as they finish. The tasks read and write the cache by
+its path, so on a cluster of several machines `out_dir` (and the store) must be on storage that
+every node mounts at the same path. A task whose worker dies is run once more
+(`RAY_RETRIES`); a job that raises, or dies twice, is reported as failed and the rest go on.
+Ray is started only when something is left to run.
+
 Interrupts (pipeline.pool): the workers ignore SIGINT and SIGTERM (a terminal's Ctrl-C reaches
 the whole process group); the parent, on any exception (KeyboardInterrupt included), sets a
 shared stop event. Each job checks it at safe points: before it starts, before every optimiser
 step and before the evaluation, so a stopped run keeps its last completed epoch (last.pt) and no
-file is half written; a rerun resumes it.
+file is half written; a rerun resumes it. With Ray, Ctrl-C cancels the running tasks (their
+workers are killed); every checkpoint is written atomically, so each run keeps its last
+completed epoch and a rerun resumes it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import hashlib
 import json
+import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from pipeline.files import atomic_output
 from pipeline.generation import GenerateConfig, UnsafeExpertError, generate_dataset
@@ -53,6 +67,9 @@ from pipeline.report.records import BASELINES, RunRecord
 FIGURE_VARIANTS = ("ours", "s_attn")  # their first seed keeps predictions of the figure scenes
 DEFAULT_STORE = "results"  # the results store tools/reproduce.py keeps (tracked: commit it)
 INVOCATION_LOG = "invocations.jsonl"  # in the cache: date, command, wall seconds, jobs run
+BACKENDS = ("local", "ray")  # where jobs run: processes here, or Ray tasks (pipeline.ray_backend)
+RUN_THREADS = 1  # torch threads of a training/evaluation job: a Ray task asks for this many CPUs
+RAY_RETRIES = 1  # a Ray task whose worker dies is run once more; dying twice fails the job
 
 
 @dataclass(frozen=True)
@@ -102,7 +119,8 @@ class Job:
 
 @dataclass(frozen=True)
 class JobOutcome:
-    """What became of one job: "trained", "resumed" or "failed" (diverged), and its wall time."""
+    """What became of one job: "trained", "resumed" or "failed" (diverged, raised on a Ray
+    worker, or its worker died twice), and its wall time."""
 
     status: str
     seconds: float
@@ -137,7 +155,7 @@ def run_configs(variant: str, seed: int, epochs: int, preset: str = "paper") -> 
     """(ModelConfig, TrainConfig) of a run: the preset's configuration, one torch thread."""
     from predictor.config import make_configs
 
-    return make_configs(variant, None, preset=preset, seed=seed, epochs=epochs, threads=1)
+    return make_configs(variant, None, preset=preset, seed=seed, epochs=epochs, threads=RUN_THREADS)
 
 
 def data_path(out_dir: Path, spec: DataSpec) -> Path:
@@ -387,7 +405,7 @@ class RunCounts:
     trained: int
     resumed: int
     failed: int
-    failures: tuple[str, ...] = ()  # "run_dir: error" of each failed (diverged) run
+    failures: tuple[str, ...] = ()  # "run_dir: error" of each failed run
     skipped: int = 0  # runs not started because the time budget ran out
     reused_from_store: int = 0  # of `reused`: read from the results store, not the cache
     kept: int = 0  # results copied into the results store by this invocation
@@ -406,29 +424,96 @@ class Invocation:
     runs: int  # jobs run (trained or resumed; const_vel: evaluated)
 
 
+class Runner(contextlib.ExitStack):
+    """Runs a function over items on a backend (see the module); a context manager: Ray is
+    started on first use and shut down on leaving."""
+
+    def __init__(self, backend: str, jobs: int, address: str | None = None) -> None:
+        super().__init__()
+        if backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+        if backend == "ray":
+            from pipeline.ray_backend import require_ray
+
+            require_ray()  # fail before any work, even if the cache has everything
+        self.backend, self.jobs, self.address = backend, jobs, address
+        self.connected = False
+
+    def map(self, function, items: list, desc: str, deadline: float | None = None) -> list:
+        """function(item) per item, results in item order: None for an item not started
+        before `deadline`; on Ray, a `TaskFailed` for one that raised or whose worker died
+        twice (locally an exception propagates)."""
+        if not items:
+            return []
+        if self.backend == "local":
+            return run_parallel(function, items, self.jobs, desc, deadline)
+        from pipeline.ray_backend import map_settled, ray_session
+
+        if not self.connected:
+            self.enter_context(ray_session(self.address, self.jobs))
+            self.connected = True
+        bar = tqdm(total=len(items), desc=desc, unit="job", file=sys.stderr, dynamic_ncols=True)
+        with bar:
+            return map_settled(
+                function,
+                items,
+                num_cpus=RUN_THREADS,
+                max_retries=RAY_RETRIES,
+                deadline=deadline,
+                on_result=lambda result: bar.update(),
+            )
+
+
+def make_datasets(runner: Runner, items: list[tuple[DataSpec, str]]) -> list[str]:
+    """ "generated" or "reused" per dataset: cached files are checked here, the missing ones
+    made on the backend; RuntimeError if one cannot be made."""
+    from pipeline.ray_backend import TaskFailed
+
+    missing = [item for item in items if not Path(item[1]).is_file()]
+    made = iter(runner.map(ensure_dataset, missing, "datasets"))
+    statuses = [next(made) if item in missing else ensure_dataset(item) for item in items]
+    for (_, path), status in zip(items, statuses):
+        if isinstance(status, TaskFailed):
+            raise RuntimeError(f"dataset {path} on a Ray worker: {status.error}")
+    return statuses
+
+
+def run_jobs(runner: Runner, todo: list[Job], deadline: float | None) -> list[JobOutcome | None]:
+    """Every job's outcome (None: not started before the deadline)."""
+    from pipeline.ray_backend import TaskFailed
+
+    outcomes = runner.map(run_job, todo, "runs", deadline)
+    return [
+        JobOutcome("failed", 0.0, o.error) if isinstance(o, TaskFailed) else o for o in outcomes
+    ]
+
+
 def execute(
     protocol: Protocol,
     out_dir: Path,
     jobs: int,
     store: Path | None = None,
     deadline: float | None = None,
+    backend: str = "local",
+    address: str | None = None,
 ) -> RunCounts:
     """Make the datasets, then train/evaluate every run that neither the cache nor the results
     store has (none starts after `deadline`, a time.monotonic() value); every finished run's
-    results are kept in the store."""
+    results are kept in the store. `backend` and `address`: see the module."""
     specs = unique([data_spec(protocol, s) for s in protocol.settings])
     items = [(spec, str(data_path(out_dir, spec))) for spec in specs]
-    data_status = run_parallel(ensure_dataset, items, jobs, "datasets")
     all_jobs = unique(
         [j for s in protocol.settings for j in setting_jobs(protocol, s, out_dir, store)]
     )
-    # Seed-major order: an interrupted reproduction leaves whole seeds (every setting and
-    # variant), so a rerun with a smaller seed count reports from the cache alone.
-    todo = sorted((job for job in all_jobs if read_eval(job) is None), key=lambda j: j.seed)
+    with Runner(backend, jobs, address) as runner:
+        data_status = make_datasets(runner, items)
+        # Seed-major order: an interrupted reproduction leaves whole seeds (every setting and
+        # variant), so a rerun with a smaller seed count reports from the cache alone.
+        todo = sorted((job for job in all_jobs if read_eval(job) is None), key=lambda j: j.seed)
+        outcomes = run_jobs(runner, todo, deadline)
     from_store = sum(
         1 for job in all_jobs if job not in todo and result_dir(job) == Path(job.store_dir)
     )
-    outcomes = run_parallel(run_job, todo, jobs, "runs", deadline)
     statuses = [o.status if o is not None else "skipped" for o in outcomes]
     kept = sum(keep_result(job) for job in all_jobs)
     return RunCounts(
@@ -488,15 +573,18 @@ def reproduce(
     overwrite: bool = False,
     store: Path | None = None,
     budget_s: float | None = None,
+    backend: str = "local",
+    address: str | None = None,
 ) -> Outcome:
     """Run what the cache in `out_dir` and the results `store` lack and write the report at
     `report` (a .md file; results.json and results/ go beside it). `command` is how the report
     names the invocation. With `budget_s`, no run starts after that many seconds: the running
-    ones finish and the report covers what is done.
+    ones finish and the report covers what is done. `backend` "local" runs `jobs` processes
+    here, "ray" Ray tasks on the cluster at `address` (see the module).
 
     Raises FileExistsError if the report exists and not `overwrite`, ReproductionError for an
-    unusable cache entry, RuntimeError if a dataset cannot be made; KeyboardInterrupt leaves
-    every finished run cached.
+    unusable cache entry, RuntimeError if a dataset cannot be made, RayUnavailableError if Ray
+    is asked for but not installed; KeyboardInterrupt leaves every finished run cached.
     """
     from pipeline.report.document import ReportInput, write_report
 
@@ -506,7 +594,7 @@ def reproduce(
     out_dir.mkdir(parents=True, exist_ok=True)
     report.parent.mkdir(parents=True, exist_ok=True)
     deadline = None if budget_s is None else time.monotonic() + budget_s
-    counts = execute(protocol, out_dir, jobs, store, deadline)
+    counts = execute(protocol, out_dir, jobs, store, deadline, backend, address)
     history = log_invocation(out_dir, command, time.perf_counter() - started, counts)
     source = ReportInput(
         protocol=protocol,

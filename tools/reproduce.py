@@ -5,6 +5,7 @@ Examples:
     python tools/reproduce.py --settings main --seeds 3 --jobs 2
     python tools/reproduce.py --quick              # tiny smoke version of everything (~1-2 min)
     python tools/reproduce.py --settings main --seeds 5 --report docs/RESULTS.md --overwrite
+    python tools/reproduce.py --settings main --backend ray --address HEAD_IP:6379
 
 The report goes to OUT_DIR/RESULTS.md (default outputs/reproduce/RESULTS.md), with
 results.json and the figures (results/) beside it; `--report docs/RESULTS.md --overwrite`
@@ -44,6 +45,15 @@ pipeline/reproduction.py). A run with its eval.json is reused; a run with last.p
 ran jobs (date, command, wall seconds), for the report's wall time. Delete the cache after
 changing how experts, model or training behave: the keys hash configurations, not code.
 
+Backends (`--backend`): `local` (default) runs `--jobs` processes here; `ray` runs every job
+(and every missing dataset) as a Ray task of one CPU on the cluster at `--address` (default
+$RAY_ADDRESS, else a local Ray instance with `--jobs` CPUs), gathered as they finish, with the
+same cache, store, budget and report (docs/SCALING.md). The cache is read and written by path:
+on a cluster of several machines, --out-dir (and --store) must be on storage every node mounts
+at the same path. A job whose worker dies is run once more; a job that raises or dies twice is
+reported as failed (exit 1) and the others go on. Ray is an optional extra: pip install -e
+'.[ray]'.
+
 Expected wall time, measured on the 2-core AMD EPYC development VM (1 torch thread, other work
 running; epoch times include validation): the variants with the sequence loss (ours,
 nonsmooth, average, correct) cost ~0.046 s per training scene and epoch, s_attn ~0.019 s
@@ -79,7 +89,8 @@ from pipeline.protocol import (
     ReproductionError,
     pick,
 )
-from pipeline.reproduction import DEFAULT_STORE, reproduce
+from pipeline.ray_backend import RayUnavailableError
+from pipeline.reproduction import BACKENDS, DEFAULT_STORE, reproduce
 from predictor.config import DEFAULT_PRESET, PRESETS
 
 
@@ -117,6 +128,19 @@ def parse_args(argv: list[str] | None = None):
     )
     parser.add_argument(
         "--jobs", type=int, default=2, help="parallel processes, one torch thread each (default 2)"
+    )
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="local",
+        help="local: --jobs processes here (default); ray: one Ray task per job on a cluster, "
+        "the same cache and report (pip install -e '.[ray]')",
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        help="with --backend ray: the cluster (default $RAY_ADDRESS, else a local Ray instance "
+        "with --jobs CPUs)",
     )
     parser.add_argument(
         "--quick",
@@ -230,13 +254,22 @@ def main(argv: list[str] | None = None) -> None:
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # inherited by the spawned workers
     try:
         done = reproduce(
-            protocol, out_dir, report, args.jobs, command, args.overwrite, store, budget_s
+            protocol,
+            out_dir,
+            report,
+            args.jobs,
+            command,
+            args.overwrite,
+            store,
+            budget_s,
+            backend=args.backend,
+            address=args.address,
         )
     except KeyboardInterrupt:
         fail(
             "interrupted; finished runs are cached: run the same command again to resume", code=130
         )
-    except ReproductionError as err:
+    except (ReproductionError, RayUnavailableError) as err:
         fail(str(err))
     except (OSError, RuntimeError, ValueError) as err:
         fail(str(err), code=1)

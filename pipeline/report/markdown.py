@@ -265,7 +265,8 @@ def render(report: Report, notes: str | None, notes_name: str) -> str:
     parts += ["\n## How this was produced\n", how_produced(report)]
     if counts.failures:
         parts.append(
-            "\nFailed runs (diverged):\n\n" + "\n".join(f"- `{line}`" for line in counts.failures)
+            "\nFailed runs (diverged, raised, or their worker died twice):\n\n"
+            + "\n".join(f"- `{line}`" for line in counts.failures)
         )
     parts += ["\n## Settings and datasets\n", settings_table(report), "", NOTES]
     parts.append("\n## Results (main cars: the two interacting cars)\n")
