@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from pipeline.backends import BACKENDS
 from pipeline.episode_runner import DeferredSignals, run_slots
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 from scenarios import SCENARIOS, Scenario
@@ -49,7 +50,6 @@ DEFAULT_SCENARIO = "double_merge_v1"
 MAX_MINOR_RATIO = 10.0  # larger ratios are almost certainly a typo
 MAX_ATTEMPTS = 5  # replacement rounds for rejected (unsafe) episodes
 SPLIT_ORDER = ("train", "val", "test")
-BACKENDS = ("local", "ray")  # where episodes run: processes here, or Ray tasks
 
 
 @dataclass(frozen=True)

@@ -42,21 +42,19 @@ completed epoch and a rerun resumes it.
 
 from __future__ import annotations
 
-import contextlib
 import datetime
 import hashlib
 import json
-import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
+from pipeline.backends import Runner
 from pipeline.files import atomic_output
 from pipeline.generation import GenerateConfig, UnsafeExpertError, generate_dataset
-from pipeline.pool import check_stop, run_parallel
+from pipeline.pool import check_stop
 from pipeline.protocol import (
     Protocol,
     ReproductionError,
@@ -67,7 +65,6 @@ from pipeline.report.records import BASELINES, RunRecord
 FIGURE_VARIANTS = ("ours", "s_attn")  # their first seed keeps predictions of the figure scenes
 DEFAULT_STORE = "results"  # the results store tools/reproduce.py keeps (tracked: commit it)
 INVOCATION_LOG = "invocations.jsonl"  # in the cache: date, command, wall seconds, jobs run
-BACKENDS = ("local", "ray")  # where jobs run: processes here, or Ray tasks (pipeline.ray_backend)
 RUN_THREADS = 1  # torch threads of a training/evaluation job: a Ray task asks for this many CPUs
 RAY_RETRIES = 1  # a Ray task whose worker dies is run once more; dying twice fails the job
 
@@ -424,46 +421,6 @@ class Invocation:
     runs: int  # jobs run (trained or resumed; const_vel: evaluated)
 
 
-class Runner(contextlib.ExitStack):
-    """Runs a function over items on a backend (see the module); a context manager: Ray is
-    started on first use and shut down on leaving."""
-
-    def __init__(self, backend: str, jobs: int, address: str | None = None) -> None:
-        super().__init__()
-        if backend not in BACKENDS:
-            raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
-        if backend == "ray":
-            from pipeline.ray_backend import require_ray
-
-            require_ray()  # fail before any work, even if the cache has everything
-        self.backend, self.jobs, self.address = backend, jobs, address
-        self.connected = False
-
-    def map(self, function, items: list, desc: str, deadline: float | None = None) -> list:
-        """function(item) per item, results in item order: None for an item not started
-        before `deadline`; on Ray, a `TaskFailed` for one that raised or whose worker died
-        twice (locally an exception propagates)."""
-        if not items:
-            return []
-        if self.backend == "local":
-            return run_parallel(function, items, self.jobs, desc, deadline)
-        from pipeline.ray_backend import map_settled, ray_session
-
-        if not self.connected:
-            self.enter_context(ray_session(self.address, self.jobs))
-            self.connected = True
-        bar = tqdm(total=len(items), desc=desc, unit="job", file=sys.stderr, dynamic_ncols=True)
-        with bar:
-            return map_settled(
-                function,
-                items,
-                num_cpus=RUN_THREADS,
-                max_retries=RAY_RETRIES,
-                deadline=deadline,
-                on_result=lambda result: bar.update(),
-            )
-
-
 def make_datasets(runner: Runner, items: list[tuple[DataSpec, str]]) -> list[str]:
     """ "generated" or "reused" per dataset: cached files are checked here, the missing ones
     made on the backend; RuntimeError if one cannot be made."""
@@ -505,7 +462,7 @@ def execute(
     all_jobs = unique(
         [j for s in protocol.settings for j in setting_jobs(protocol, s, out_dir, store)]
     )
-    with Runner(backend, jobs, address) as runner:
+    with Runner(backend, jobs, address, RUN_THREADS, RAY_RETRIES) as runner:
         data_status = make_datasets(runner, items)
         # Seed-major order: an interrupted reproduction leaves whole seeds (every setting and
         # variant), so a rerun with a smaller seed count reports from the cache alone.

@@ -17,9 +17,9 @@ import re
 import signal
 from pathlib import Path
 
+from pipeline.backends import BACKENDS
 from pipeline.cli import ArgumentParser, fail, run_main
 from pipeline.generation import (
-    BACKENDS,
     DEFAULT_MINOR_RATIO,
     DEFAULT_SCENARIO,
     GenerateConfig,

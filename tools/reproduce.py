@@ -72,6 +72,7 @@ import signal
 import sys
 from pathlib import Path
 
+from pipeline.backends import BACKENDS
 from pipeline.cli import ArgumentParser, fail
 from pipeline.protocol import (
     ALL_VARIANTS,
@@ -90,7 +91,7 @@ from pipeline.protocol import (
     pick,
 )
 from pipeline.ray_backend import RayUnavailableError
-from pipeline.reproduction import BACKENDS, DEFAULT_STORE, reproduce
+from pipeline.reproduction import DEFAULT_STORE, reproduce
 from predictor.config import DEFAULT_PRESET, PRESETS
 
 
