@@ -181,7 +181,8 @@ def test_ctrl_c_cancels_a_ray_sweep_and_the_rerun_resumes(tmp_path):
     command then resumes both runs from their last.pt."""
     cache = tmp_path / "cache"
     argv = ["--quick", "--settings", "hc_go", "--variants", "ours", "--seeds", "2"]
-    argv += ["--epochs", "10", "--backend", "ray", "--jobs", "2", "--out-dir", str(cache)]
+    epochs = 6  # enough that no run finishes before the signal (an epoch takes seconds)
+    argv += ["--epochs", str(epochs), "--backend", "ray", "--jobs", "2", "--out-dir", str(cache)]
     command = [sys.executable, str(REPO_ROOT / "tools" / "reproduce.py"), *argv]
     env = {k: v for k, v in tool_env().items() if k != "RAY_ADDRESS"}
     process = subprocess.Popen(
@@ -203,12 +204,13 @@ def test_ctrl_c_cancels_a_ray_sweep_and_the_rerun_resumes(tmp_path):
     assert process.returncode == 130, err[-2000:]
     assert err.splitlines()[-1].startswith("error: interrupted; finished runs are cached")
     assert out == "" and "Traceback" not in err and not list(cache.rglob("eval.json"))
-    resumed = subprocess.run(command, capture_output=True, text=True, env=env, timeout=300)
+    # generous: a loaded machine ran the resumed runs past 300 s (Ray's workers run niced)
+    resumed = subprocess.run(command, capture_output=True, text=True, env=env, timeout=1200)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert "2 runs (0 trained, 2 resumed, 0 reused, 0 failed)" in resumed.stdout
     for metrics in cache.glob("runs/*/ours/*/metrics.jsonl"):
-        epochs = [json.loads(line)["epoch"] for line in metrics.read_text().splitlines()]
-        assert epochs == list(range(1, 11))  # each epoch once: none lost, none repeated
+        done = [json.loads(line)["epoch"] for line in metrics.read_text().splitlines()]
+        assert done == list(range(1, epochs + 1))  # each epoch once: none lost, none repeated
 
 
 def test_missing_ray_is_one_line_exit_2(monkeypatch, tmp_path, capsys):
