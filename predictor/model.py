@@ -81,6 +81,7 @@ from predictor.highway import (
     agent_maps,
     attended_changes,
     fit_cross_fitted,
+    fold_of,
     future_offsets,
     history_features,
     neighbour_features,
@@ -256,7 +257,11 @@ class SmoothAttentionPredictor(nn.Module):
             self.register_buffer("attended_mean", torch.zeros(features))
             self.register_buffer("attended_std", torch.ones(features))
             shape = (max(config.num_roles, 1), features, config.highway_horizon, 2)
-            self.attended_weight = nn.Parameter(torch.zeros(shape))
+            if config.attended_refit:  # refitted in closed form every epoch (refit_attended)
+                self.register_buffer("attended_weight", torch.zeros(shape))
+                self.register_buffer("attended_fold_weight", torch.zeros(CROSS_FIT_FOLDS, *shape))
+            else:
+                self.attended_weight = nn.Parameter(torch.zeros(shape))
         self.g_self = nn.LSTM(emb, hid)
         self.g_interact = nn.LSTM(emb, hid)
         learned = config.attention_mode == "learned"
@@ -531,11 +536,88 @@ class SmoothAttentionPredictor(nn.Module):
             self.config.highway_steps,
             head,
         )
-        weight = self.attended_weight[roles]  # (B, N, F, horizon, 2)
+        if self.config.attended_refit and steps.scenes is not None:  # cross-fitted maps
+            fold = fold_of(steps.scenes, CROSS_FIT_FOLDS).unsqueeze(-1).expand_as(roles)
+            weight = self.attended_fold_weight[fold, roles]  # (B, N, F, horizon, 2)
+        else:
+            weight = self.attended_weight[roles]  # (B, N, F, horizon, 2)
         change = attended_changes(
             features, mask, theta, self.attended_mean, self.attended_std, weight
         )
         return change * self.anchor_std  # (B, N, horizon, 2)
+
+    @torch.no_grad()
+    def refit_attended(
+        self,
+        positions: Tensor,
+        valid: Tensor,
+        num_observed: int,
+        labels: Tensor | None = None,
+        roles: Tensor | None = None,
+        batch_size: int = 64,
+    ) -> None:
+        """Refit the highway's own and attended maps jointly in closed form
+        (`ModelConfig.attended_refit`) on the training scenes (B, T, N, .), in the order
+        `fit_normalisation` saw them (the cross-fitting folds follow the scene index), with the
+        attention the model gives now at the last observed step. labels (B, T, N) are needed
+        for oracle attention, roles (B, N) where the model reads roles."""
+        cfg = self.config
+        if not cfg.attended_refit:
+            raise ValueError("refit_attended needs ModelConfig.attended_refit")
+        if cfg.num_roles > 0 and roles is None:
+            raise ValueError("the model reads agent roles; refit_attended needs them")
+        parts: list[tuple[Tensor, ...]] = []
+        for first in range(0, positions.shape[0], batch_size):
+            sl = slice(first, first + batch_size)
+            steps = self._prepare(
+                positions[sl],
+                valid[sl],
+                num_observed,
+                None if labels is None else labels[sl],
+                None if roles is None else roles[sl],
+            )
+            theta = self._block(steps, 0, num_observed, None).attention[-1]  # (B, N, N-1)
+            parts.append(self._refit_samples(steps, theta))
+        own, attended, offsets, samples = (torch.cat(column) for column in zip(*parts))
+        role_index = (
+            roles.long() if cfg.num_roles > 0 else torch.zeros_like(samples, dtype=torch.long)
+        )
+        num_roles = self.highway_weight.shape[0]
+        weight, bias, fold_weight, fold_bias = fit_cross_fitted(
+            torch.cat([own, attended], -1),
+            offsets,
+            samples,
+            role_index,
+            num_roles,
+            cfg.highway_horizon,
+        )
+        split = own.shape[-1]
+        scale = self.anchor_std.view(1, 1, 1, 2)  # attended maps are in units of anchor_std
+        self.highway_weight.copy_(weight[:, :split])
+        self.highway_bias.copy_(bias)
+        self.highway_fold_weight.copy_(fold_weight[:, :, :split])
+        self.highway_fold_bias.copy_(fold_bias)
+        self.attended_weight.copy_(weight[:, split:] / scale)
+        self.attended_fold_weight.copy_(fold_weight[:, :, split:] / scale)
+
+    def _refit_samples(self, steps: _Steps, theta: Tensor) -> tuple[Tensor, ...]:
+        """Regression samples of `refit_attended` for one batch: own features (B, N, F_own),
+        attended features sum_j theta_ij z_ij (B, N, F_att), future offsets (B, N, T_pred, 2)
+        and which agents to fit on (B, N)."""
+        rotation, t_obs = steps.frame[1], steps.num_observed
+        own, usable = history_features(
+            steps.pos, steps.present, t_obs, rotation, self.config.highway_steps
+        )
+        _, head = edge_index(steps.pos.shape[2], steps.pos.device)
+        edges, mask = neighbour_features(
+            steps.pos, steps.present, t_obs, rotation, self.config.highway_steps, head
+        )
+        standard = torch.where(
+            mask.unsqueeze(-1), (edges - self.attended_mean) / self.attended_std, 0.0
+        )
+        attended = (theta.unsqueeze(-1) * standard).sum(2)  # (B, N, F_att)
+        offsets, complete = future_offsets(steps.pos, steps.present, t_obs, rotation)
+        return own, attended, offsets, usable & complete
 
     def _run(
         self,

@@ -249,6 +249,9 @@ class RunState:
     best_score: float | None = None
     best_epoch: int = 0
     history_tail: dict = field(default_factory=dict)  # last epoch's record
+    # the training scenes in the order fit_normalisation saw them (ModelConfig.attended_refit
+    # refits the highway on them at the start of every epoch); None: no refit
+    refit_scenes: Batch | None = None
 
 
 def checkpoint_dict(
@@ -292,6 +295,7 @@ def build_state(
             scenes.positions, scenes.valid, train_set.meta.num_observed, scenes.roles
         )
     optimizer = make_optimizer(model, train_cfg)
+    refit_scenes = train_set.all() if model_cfg.attended_refit else None
     loader = make_loader(
         train_set,
         train_cfg.batch_size,
@@ -299,7 +303,7 @@ def build_state(
         seed=train_cfg.seed,
         bucket=train_cfg.bucket_batches,
     )
-    return RunState(model, optimizer, loader)
+    return RunState(model, optimizer, loader, refit_scenes=refit_scenes)
 
 
 def restore_state(state: RunState, checkpoint: dict) -> None:
@@ -540,6 +544,11 @@ def _one_epoch(
 ) -> dict:
     """Train one epoch, validate if due, update the best score; returns the metrics record."""
     started = time.perf_counter()
+    if state.refit_scenes is not None:  # the highway read with this epoch's attention
+        scenes = state.refit_scenes
+        state.model.refit_attended(
+            scenes.positions, scenes.valid, num_observed, scenes.attention, scenes.roles
+        )
     terms = run_epoch(state, num_observed, config, bar, step_callback)
     state.epoch = epoch
     val, best = None, False

@@ -269,3 +269,99 @@ def test_attended_highway_needs_the_highway_and_s_attn_drops_it():
         ModelConfig(**ANCHORED, highway_attended=True)
     model, _ = make_configs("s_attn", {"highway_attended": True}, preset="agent")
     assert not model.highway_attended and model.highway_steps == 0
+
+
+def follower_scenes(batch: int, steps: int, num_observed: int, seed: int):
+    """Three agents heading +x. The leader (agent 1) accelerates at a constant random rate
+    from the start; the follower (agent 0) drives at constant speed through the observed steps
+    and then copies the leader's acceleration, so its future offset from constant velocity is
+    a_L k (k + 1) / 2 after k steps: linear in the leader's observed velocities, invisible in
+    its own. Agent 2 accelerates at a rate of its own. Labels: the follower attends the leader,
+    the others nobody."""
+    gen = torch.Generator().manual_seed(seed)
+    t = torch.arange(steps, dtype=torch.float64).view(1, -1, 1)  # (1, T, 1)
+    start = torch.tensor([[0.0, 0.0], [15.0, 3.5], [-10.0, -3.5]], dtype=torch.float64)
+    start = start + torch.rand(batch, 3, 2, generator=gen, dtype=torch.float64)  # (B, N, 2)
+    speed = 2.0 + torch.rand(batch, 3, generator=gen, dtype=torch.float64)  # (B, N) along x
+    accel = 0.05 * torch.randn(batch, 3, 2, generator=gen, dtype=torch.float64)  # (B, N, 2)
+    accel[:, 0] = accel[:, 1]  # the follower's, from T_obs - 1 on
+    since = (t - (num_observed - 1)).clamp(min=0)  # (1, T, 1): the follower's clock
+    clock = torch.cat([since, t, t], -1).unsqueeze(-1)  # (1, T, N, 1) per agent
+    velocity = torch.stack([speed, torch.zeros_like(speed)], -1).unsqueeze(1)  # (B, 1, N, 2)
+    positions = start.unsqueeze(1) + velocity * t.unsqueeze(-1) + accel.unsqueeze(1) * clock**2 / 2
+    valid = torch.ones(batch, steps, 3, dtype=torch.bool)
+    labels = torch.full((batch, steps, 3), -1, dtype=torch.long)
+    labels[:, :, 0] = 1
+    return positions.float(), valid, labels
+
+
+REFIT = {**SMALL, **ANCHORED, "highway_steps": 4, "highway_horizon": 6}
+
+
+def test_refit_with_the_labelled_leader_rolls_out_the_follower_that_copies_it():
+    num_observed, steps = 8, 14
+    train, valid, labels = follower_scenes(batch=40, steps=steps, num_observed=num_observed, seed=1)
+    test, test_valid, test_labels = follower_scenes(5, steps, num_observed, seed=2)
+    truth = test[:, num_observed:, 0]  # (B, T_pred, 2) the follower
+    # one map per role: the follower's future reads the leader, the others' their own history
+    config = ModelConfig(
+        **REFIT, attention_mode="oracle", num_roles=3, highway_attended=True, attended_refit=True
+    )
+    roles = torch.arange(3).expand(40, 3)
+    test_roles = roles[:5]
+    model = SmoothAttentionPredictor(config)
+    model.fit_normalisation(train, valid, num_observed, roles)
+
+    def follower(m: SmoothAttentionPredictor) -> torch.Tensor:
+        out = m.predict(test, test_valid, num_observed, test_labels, roles=test_roles)
+        return out.rollout.mean[:, :, 0]
+
+    own_only = follower(model)
+    model.refit_attended(train, valid, num_observed, labels, roles)
+    refitted = follower(model)
+    own_error = (own_only - truth).norm(dim=-1).max()
+    assert own_error > 0.05  # the own history cannot tell the leader's acceleration [m]
+    assert (refitted - truth).norm(dim=-1).max() < 0.02 * own_error
+    # the maps are buffers (fitted, not trained) and travel with the checkpoint
+    names = {name for name, _ in model.named_parameters()}
+    assert not names & {"attended_weight", "attended_fold_weight", "highway_weight"}
+    clone = SmoothAttentionPredictor(config)
+    clone.load_state_dict(model.state_dict())
+    torch.testing.assert_close(follower(clone), refitted)
+
+
+def test_refit_reads_the_current_attention_and_cross_fits_the_training_scenes():
+    num_observed, steps = 8, 14
+    train, valid, _ = follower_scenes(batch=30, steps=steps, num_observed=num_observed, seed=3)
+    config = ModelConfig(**REFIT, highway_attended=True, attended_refit=True)
+    torch.manual_seed(0)
+    model = SmoothAttentionPredictor(config)
+    model.fit_normalisation(train, valid, num_observed)
+    model.refit_attended(train, valid, num_observed)
+    first = model.attended_weight.clone()
+    with torch.no_grad():  # another attention, another fit of the same scenes
+        model.f_attn.weight.mul_(5.0)
+    model.refit_attended(train, valid, num_observed)
+    assert (model.attended_weight - first).abs().max() > 1e-4
+    # training scenes roll out with the maps fitted without their fold, as the plain highway
+    scenes = torch.arange(30)
+    out = model(train, valid, num_observed, sample=False, scenes=scenes).rollout.mean
+    full = model.predict(train, valid, num_observed).rollout.mean
+    assert (out - full).abs().max() > 1e-5
+    with torch.no_grad():  # the fold maps made equal to the full ones: the same rollout
+        model.attended_fold_weight.copy_(
+            model.attended_weight.expand_as(model.attended_fold_weight)
+        )
+        model.highway_fold_weight.copy_(model.highway_weight.expand_as(model.highway_fold_weight))
+        model.highway_fold_bias.copy_(model.highway_bias.expand_as(model.highway_fold_bias))
+    same = model(train, valid, num_observed, sample=False, scenes=scenes).rollout.mean
+    torch.testing.assert_close(same, full)
+
+
+def test_attended_refit_needs_the_attended_highway():
+    with pytest.raises(ValueError, match="attended_refit needs highway_attended"):
+        ModelConfig(**REFIT, attended_refit=True)
+    model = SmoothAttentionPredictor(ModelConfig(**REFIT, highway_attended=True))
+    positions, valid = accelerating_scenes(batch=2, steps=10, agents=3)
+    with pytest.raises(ValueError, match="needs ModelConfig.attended_refit"):
+        model.refit_attended(positions, valid, 8)

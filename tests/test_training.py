@@ -137,8 +137,18 @@ def test_same_seed_same_run_and_files(braking_file: Path, tmp_path: Path):
     assert set(weights(tmp_path / "a", "best.pt")) == set(weights(tmp_path / "a"))
 
 
-def test_resume_after_interruption_equals_uninterrupted(braking_file: Path, tmp_path: Path):
+REFIT_AGENT = {**TINY_MODEL, "highway_attended": True, "attended_refit": True}
+
+
+@pytest.mark.parametrize("refit", [False, True], ids=["paper", "agent_refit"])
+def test_resume_after_interruption_equals_uninterrupted(
+    braking_file: Path, tmp_path: Path, refit: bool
+):
     model_cfg, train_cfg = tiny_configs(epochs=3)
+    if refit:  # the highway refitted at every epoch start (ModelConfig.attended_refit)
+        model_cfg, train_cfg = make_configs(
+            "ours", REFIT_AGENT, preset="agent", epochs=3, batch_size=3, seed=0, lr=3e-3
+        )
     train(braking_file, model_cfg, train_cfg, tmp_path / "full", progress=False)
 
     def interrupt(step: int) -> None:
@@ -160,6 +170,8 @@ def test_resume_after_interruption_equals_uninterrupted(braking_file: Path, tmp_
     )
     assert result.epochs == 3
     assert_same_weights(weights(tmp_path / "full"), weights(tmp_path / "cut"))
+    if refit:  # the refit ran: fitted maps in the checkpoint
+        assert weights(tmp_path / "full")["attended_weight"].abs().sum() > 0
     assert_same_weights(weights(tmp_path / "full", "best.pt"), weights(tmp_path / "cut", "best.pt"))
 
     def losses(run: str) -> list:

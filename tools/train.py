@@ -59,6 +59,7 @@ MODEL_FLAGS = (
     "highway_steps",
     "highway_horizon",
     "highway_attended",
+    "attended_refit",
     "neighbours",
     "neighbour_radius_m",
     "neighbour_k",
