@@ -2,7 +2,10 @@
 Ctrl-C handled between episodes (`DeferredSignals`); pipeline.generation plans the episodes
 and writes the dataset.
 
-The result is the episodes in slot order, whatever the number of workers or the backend.
+Episodes are rolled out `batch_scenes` at a time as one batched world
+(`scenarios.batched_rollout.rollout_batch`), or one by one with `scenarios.rollout` when
+`batch_scenes` is 1; both give the same episodes, bit for bit. The result is the episodes in
+slot order, whatever the number of workers, the backend or the batch size.
 """
 
 from __future__ import annotations
@@ -19,13 +22,18 @@ from typing import TYPE_CHECKING
 from tqdm import tqdm
 
 from scenarios import SCENARIOS, Scenario
+from scenarios.batched_rollout import rollout_batch
 from scenarios.rollout import Episode, rollout
 
 if TYPE_CHECKING:
     from pipeline.generation import Slot
 
 _POLL_SECONDS = 0.1  # how often the parent looks for a recorded signal while workers run
-_MAX_CHUNK = 32  # most episodes per pool task (fewer tasks, but a progress bar that moves)
+_MAX_CHUNK = 32  # most episodes per pool task, one by one (fewer tasks, but a moving bar)
+# Episodes stepped together as one batched world when none is asked for: measured on the 2-core
+# development machine (benchmarks/README.md), a batch costs ~18 ms plus ~0.7-0.9 ms per scene,
+# so 64 scenes run at ~1 ms each while a chunk of a default set still goes to each worker.
+DEFAULT_BATCH_SCENES = 64
 
 
 class DeferredSignals:
@@ -88,12 +96,22 @@ def _init_worker(scenario_name: str) -> None:
     _load_scenario(scenario_name)
 
 
-def _run_slot(slot: Slot) -> Episode:
-    return rollout(_SCENARIO, slot.seed, slot.case)
+def _run_batch(slots: list[Slot]) -> list[Episode]:
+    """Roll out `slots` with the loaded scenario: one batched world, or `rollout` for one."""
+    if len(slots) == 1:
+        return [rollout(_SCENARIO, slots[0].seed, slots[0].case)]
+    return rollout_batch(_SCENARIO, [slot.seed for slot in slots], [slot.case for slot in slots])
 
 
-def _run_chunk(slots: list[Slot]) -> list[Episode]:
-    return [_run_slot(slot) for slot in slots]
+def _batches(slots: list[Slot], batch_scenes: int) -> list[list[Slot]]:
+    """Consecutive batches of at most `batch_scenes` slots."""
+    return [slots[i : i + batch_scenes] for i in range(0, len(slots), batch_scenes)]
+
+
+def _run_chunk(task: tuple[list[Slot], int]) -> list[Episode]:
+    """A pool or Ray task: roll out a chunk of slots in batches of `batch_scenes`."""
+    slots, batch_scenes = task
+    return [episode for batch in _batches(slots, batch_scenes) for episode in _run_batch(batch)]
 
 
 def _next_result(
@@ -108,17 +126,22 @@ def _next_result(
             pass
 
 
-def _ray_chunk(task: tuple[str, list[Slot]]) -> list[Episode]:
-    """A Ray task: roll out a chunk of slots of a scenario."""
-    scenario_name, slots = task
+def _ray_chunk(task: tuple[str, list[Slot], int]) -> list[Episode]:
+    """A Ray task: roll out a chunk of slots of a scenario in batches of `batch_scenes`."""
+    scenario_name, slots, batch_scenes = task
     if _SCENARIO is None or _SCENARIO.name != scenario_name:
         _load_scenario(scenario_name)
-    return _run_chunk(slots)
+    return _run_chunk((slots, batch_scenes))
 
 
-def _chunks(slots: list[Slot], workers: int) -> list[list[Slot]]:
-    """Consecutive chunks of at most _MAX_CHUNK slots, about 8 per worker."""
-    size = max(1, min(_MAX_CHUNK, len(slots) // (8 * workers)))
+def _chunks(slots: list[Slot], workers: int, batch_scenes: int = 1) -> list[list[Slot]]:
+    """Consecutive chunks for the workers: one by one, at most _MAX_CHUNK slots, about 8 per
+    worker; batched, one batch each, at most `batch_scenes` and about 2 per worker (so a
+    worker slowed down by other load leaves the other one a chunk to take)."""
+    if batch_scenes == 1:
+        size = max(1, min(_MAX_CHUNK, len(slots) // (8 * workers)))
+    else:
+        size = max(1, min(batch_scenes, -(-len(slots) // (2 * workers))))
     return [slots[i : i + size] for i in range(0, len(slots), size)]
 
 
@@ -129,35 +152,41 @@ def run_slots(
     progress: tqdm,
     signals: DeferredSignals,
     backend: str = "local",
+    batch_scenes: int = DEFAULT_BATCH_SCENES,
 ) -> list[Episode]:
-    """Roll out every slot, in order; the result depends neither on `workers` nor `backend`.
+    """Roll out every slot, in order; the result depends on none of `workers`, `backend` and
+    `batch_scenes` (episodes stepped together as one batched world; 1: one by one).
 
     With workers > 1 the slots go to a pool in chunks, terminated on any exception
     (KeyboardInterrupt included); with backend "ray", the chunks are Ray tasks in the running
-    Ray session (see `generate_episodes`).
+    Ray session (see `generate_episodes`). In this process, recorded signals are delivered
+    between batches.
     """
+    if batch_scenes < 1:
+        raise ValueError(f"batch_scenes must be at least 1, got {batch_scenes}")
     episodes = []
+    chunks = _chunks(slots, workers, batch_scenes)
     if backend == "ray":
         from pipeline.ray_backend import map_in_order
 
-        chunks = map_in_order(
+        results = map_in_order(
             _ray_chunk,
-            [(scenario_name, chunk) for chunk in _chunks(slots, workers)],
+            [(scenario_name, chunk, batch_scenes) for chunk in chunks],
             on_result=lambda chunk: progress.update(len(chunk)),
             check=signals.check,
         )
-        return [episode for chunk in chunks for episode in chunk]
+        return [episode for chunk in results for episode in chunk]
     if workers == 1:
         _load_scenario(scenario_name)
-        for slot in slots:
-            episodes.append(_run_slot(slot))
-            progress.update()
+        for batch in _batches(slots, batch_scenes):
+            episodes.extend(_run_batch(batch))
+            progress.update(len(batch))
             signals.check()
         return episodes
-    chunks = _chunks(slots, workers)
     context = multiprocessing.get_context("spawn" if sys.platform == "darwin" else "fork")
     with context.Pool(workers, initializer=_init_worker, initargs=(scenario_name,)) as pool:
-        results = pool.imap(_run_chunk, chunks)  # chunksize 1: an iterator with next(timeout)
+        tasks = [(chunk, batch_scenes) for chunk in chunks]
+        results = pool.imap(_run_chunk, tasks)  # chunksize 1: an iterator with next(timeout)
         for _ in chunks:
             chunk = _next_result(results, signals)
             episodes.extend(chunk)

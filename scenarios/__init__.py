@@ -2,7 +2,8 @@
 
 Plain scenario classes (`DoubleMerge`, `HaltingCar`, registered in `SCENARIOS`) draw randomised
 episodes from a seed and drive every car with an expert policy; `rollout` records one episode as
-numpy arrays. The PettingZoo environments are the submodules `double_merge_v0`,
+numpy arrays, and `rollout_batch` records many episodes at once as one batched world (the same
+arrays, several times faster). The PettingZoo environments are the submodules `double_merge_v0`,
 `double_merge_v1`, `halting_car_v0` and `halting_car_v1` (imported on demand: `from scenarios
 import halting_car_v1`). The v1 scenarios (`ReactiveDoubleMerge`, `ReactiveHaltingCar`,
 registered as "double_merge_v1" and "halting_car_v1") make each labelled car's observed state
@@ -13,6 +14,7 @@ import importlib
 from types import ModuleType
 
 from scenarios.base import ROLE_NAMES, Scenario, ScenarioConfig, ScenarioPlan
+from scenarios.batched_rollout import rollout_batch
 from scenarios.double_merge import DoubleMerge, DoubleMergeConfig, DoubleMergePlan
 from scenarios.double_merge_reactive import (
     ReactiveDoubleMerge,
@@ -72,4 +74,5 @@ __all__ = [
     "advance",
     "env_module",
     "rollout",
+    "rollout_batch",
 ]

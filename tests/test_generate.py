@@ -24,6 +24,7 @@ from pipeline import episode_runner, generation
 from pipeline.generation import GenerateConfig, default_output, generate_dataset, plan
 from predictor.format import OPTIONAL_FIELDS, read_dataset, read_meta
 from scenarios import SCENARIOS
+from scenarios.batched_rollout import rollout_batch
 from scenarios.rollout import rollout
 
 REPO = Path(__file__).resolve().parents[1]
@@ -214,6 +215,19 @@ def test_same_config_same_data_for_any_worker_count(tmp_path):
     assert d["train"].seed[0] == generation.SEED_STRIDE
 
 
+@pytest.mark.parametrize("name", ["double_merge_v1", "halting_car_v1"])
+def test_batched_generation_writes_the_same_bytes_as_one_by_one(tmp_path, name):
+    config = GenerateConfig.for_scenario(name, num_major=12, num_minor=5, num_test=6)  # 34 slots
+    generate_dataset(config, tmp_path / "one_by_one.h5", progress=False, batch_scenes=1)
+    expected = (tmp_path / "one_by_one.h5").read_bytes()
+    for workers, batch_scenes in ((1, 5), (2, 5), (1, 64), (2, 64)):
+        out = tmp_path / f"w{workers}_b{batch_scenes}.h5"
+        generate_dataset(config, out, workers=workers, progress=False, batch_scenes=batch_scenes)
+        assert out.read_bytes() == expected, (workers, batch_scenes)
+    with pytest.raises(ValueError, match="batch_scenes must be at least 1"):
+        generate_dataset(config, tmp_path / "x.h5", progress=False, batch_scenes=0)
+
+
 def test_refuses_to_overwrite_before_any_work(tmp_path, monkeypatch):
     out = tmp_path / "x.h5"
     out.write_bytes(b"precious")
@@ -235,18 +249,29 @@ def test_refuses_to_overwrite_before_any_work(tmp_path, monkeypatch):
     assert result.path == out and read_meta(out).scenario == "halting_car"
 
 
-def test_unsafe_episodes_are_replaced_deterministically(monkeypatch):
+def patch_episodes(monkeypatch, change) -> None:
+    """Make the generator's episodes `change(episode)`, on both paths (one by one, batched)."""
+
+    def one(scenario, seed, case):
+        return change(rollout(scenario, seed, case))
+
+    def batch(scenario, seeds, cases):
+        return [change(episode) for episode in rollout_batch(scenario, seeds, cases)]
+
+    monkeypatch.setattr(episode_runner, "rollout", one)
+    monkeypatch.setattr(episode_runner, "rollout_batch", batch)
+
+
+@pytest.mark.parametrize("batch_scenes", [1, 3, 64])
+def test_unsafe_episodes_are_replaced_deterministically(monkeypatch, batch_scenes):
     bad_seeds = {2, 5}
 
-    def flaky_rollout(scenario, seed, case):
-        episode = rollout(scenario, seed, case)
-        if seed in bad_seeds:
-            return dataclasses.replace(episode, collided=True)
-        return episode
+    def flag(episode):
+        return dataclasses.replace(episode, collided=episode.seed in bad_seeds)
 
-    monkeypatch.setattr(episode_runner, "rollout", flaky_rollout)
+    patch_episodes(monkeypatch, flag)
     config = GenerateConfig.for_scenario("halting_car", num_major=4, num_minor=2, num_test=1)
-    slots, episodes, rejected = generation.generate_episodes(config)
+    slots, episodes, rejected = generation.generate_episodes(config, batch_scenes=batch_scenes)
     assert rejected == 2
     seeds = [slot.seed for slot in slots]
     assert not bad_seeds & set(seeds)
@@ -255,14 +280,12 @@ def test_unsafe_episodes_are_replaced_deterministically(monkeypatch):
     assert [e.seed for e in episodes] == seeds
 
 
-def test_always_unsafe_expert_gives_up_with_a_clear_error(monkeypatch):
-    def crash(scenario, seed, case):
-        return dataclasses.replace(rollout(scenario, seed, case), off_road=True)
-
-    monkeypatch.setattr(episode_runner, "rollout", crash)
-    config = GenerateConfig.for_scenario("halting_car", num_major=1, num_minor=0, num_test=0)
+@pytest.mark.parametrize("batch_scenes", [1, 64])
+def test_always_unsafe_expert_gives_up_with_a_clear_error(monkeypatch, batch_scenes):
+    patch_episodes(monkeypatch, lambda episode: dataclasses.replace(episode, off_road=True))
+    config = GenerateConfig.for_scenario("halting_car", num_major=2, num_minor=0, num_test=0)
     with pytest.raises(generation.UnsafeExpertError, match="still unsafe after 5 rounds"):
-        generation.generate_episodes(config)
+        generation.generate_episodes(config, batch_scenes=batch_scenes)
 
 
 def test_is_safe_rejects_nan_and_off_road():
@@ -298,7 +321,7 @@ def test_ctrl_c_reaches_the_caller_after_the_episode_and_writes_nothing(tmp_path
     before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     config = GenerateConfig.for_scenario("halting_car", **SMALL)
     with pytest.raises(KeyboardInterrupt):
-        generate_dataset(config, tmp_path / "x.h5", progress=False)
+        generate_dataset(config, tmp_path / "x.h5", progress=False, batch_scenes=1)
     assert len(calls) == 3  # delivered between episodes, not lost inside one
     assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
     assert list(tmp_path.iterdir()) == []
@@ -314,12 +337,29 @@ def test_a_callers_own_handler_gets_the_signal_between_episodes(tmp_path, monkey
     previous = signal.signal(signal.SIGINT, note)
     try:
         config = GenerateConfig.for_scenario("halting_car", **SMALL)
-        result = generate_dataset(config, tmp_path / "x.h5", progress=False)
+        result = generate_dataset(config, tmp_path / "x.h5", progress=False, batch_scenes=1)
         assert signal.getsignal(signal.SIGINT) is note
     finally:
         signal.signal(signal.SIGINT, previous)
     assert received == [(signal.SIGINT, 2)]
     assert result.path.is_file() and len(calls) == len(plan(config))
+
+
+def test_ctrl_c_reaches_the_caller_after_the_batch_and_writes_nothing(tmp_path, monkeypatch):
+    batches: list[int] = []
+
+    def signalling_batch(scenario, seeds, cases):
+        batches.append(len(seeds))
+        if len(batches) == 2:
+            os.kill(os.getpid(), signal.SIGINT)  # handled during the batch below
+        return rollout_batch(scenario, seeds, cases)
+
+    monkeypatch.setattr(episode_runner, "rollout_batch", signalling_batch)
+    config = GenerateConfig.for_scenario("halting_car", **SMALL)  # 13 slots: 4 + 4 + 4 + 1
+    with pytest.raises(KeyboardInterrupt):
+        generate_dataset(config, tmp_path / "x.h5", progress=False, batch_scenes=4)
+    assert batches == [4, 4]  # delivered after the second batch, not lost inside it
+    assert list(tmp_path.iterdir()) == []
 
 
 # ---- the command-line tool ---------------------------------------------------------------------
@@ -369,6 +409,7 @@ def test_cli_smoke_summary_and_refuses_overwrite(tmp_path):
         (["--scenario", "halting_car", "--major-case", "major"], "--major-case"),
         (["--scenario", "halting_car", "--seed", "-1"], "seed must be at least 0"),
         (["--scenario", "halting_car", "--workers", "0"], "--workers"),
+        (["--scenario", "halting_car", "--batch-scenes", "0"], "--batch-scenes must be at least 1"),
         (["--scenario", "halting_car", "--minor-ratio", "0.3", "--num-minor", "3"], "either"),
     ],
 )

@@ -40,7 +40,7 @@ def session():
 
 def test_generation_through_ray_writes_the_same_bytes(session, tmp_path):
     config = GenerateConfig.for_scenario("halting_car", num_major=6, num_minor=3, num_test=4)
-    generate_dataset(config, tmp_path / "local.h5", progress=False)
+    generate_dataset(config, tmp_path / "local.h5", progress=False, batch_scenes=1)  # one by one
     generate_dataset(config, tmp_path / "ray.h5", workers=2, progress=False, backend="ray")
     assert (tmp_path / "ray.h5").read_bytes() == (tmp_path / "local.h5").read_bytes()
 

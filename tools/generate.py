@@ -6,8 +6,9 @@ Example: python tools/generate.py --scenario halting_car_v1 --minor-ratio 0.3
 The training pool holds `--num-major` trajectories of the major case and round(R x num-major)
 of the minor case (or `--num-minor` exactly); `--val-fraction` of each case is split off for
 validation. The test split holds `--num-test` trajectories of each case. The work is one call of
-`pipeline.generation.generate_dataset` (see there: seeds, determinism for any `--workers`, safety
-checks, atomic writing); Ctrl-C or SIGTERM ends it with exit status 130 and no file.
+`pipeline.generation.generate_dataset` (see there: seeds, determinism for any `--workers` and
+`--batch-scenes`, safety checks, atomic writing); Ctrl-C or SIGTERM ends it with exit status 130
+and no file.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from pathlib import Path
 
 from pipeline.backends import BACKENDS
 from pipeline.cli import ArgumentParser, fail, run_main
+from pipeline.episode_runner import DEFAULT_BATCH_SCENES
 from pipeline.generation import (
     DEFAULT_MINOR_RATIO,
     DEFAULT_SCENARIO,
@@ -87,6 +89,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="worker processes; the output is identical for any number (default 1)",
     )
     parser.add_argument(
+        "--batch-scenes",
+        type=int,
+        default=DEFAULT_BATCH_SCENES,
+        help="episodes stepped together as one batched world, per worker task; 1 rolls them out "
+        f"one by one; the output is identical for any number (default {DEFAULT_BATCH_SCENES})",
+    )
+    parser.add_argument(
         "--backend",
         choices=BACKENDS,
         default="local",
@@ -135,6 +144,8 @@ def main(argv: list[str] | None = None) -> None:
     config = config_from_args(args)
     if args.workers < 1:
         fail(f"--workers must be at least 1, got {args.workers}")
+    if args.batch_scenes < 1:
+        fail(f"--batch-scenes must be at least 1, got {args.batch_scenes}")
     out = Path(args.out) if args.out is not None else default_output(config)
     try:
         result = generate_dataset(
@@ -144,6 +155,7 @@ def main(argv: list[str] | None = None) -> None:
             overwrite=args.overwrite,
             backend=args.backend,
             address=args.address,
+            batch_scenes=args.batch_scenes,
         )
     except KeyboardInterrupt:
         fail("interrupted; nothing was written", code=130)
