@@ -189,16 +189,8 @@ class ShardedWriter:
         for name, (dtype, _) in _FIELDS.items():
             if name in NEUTRAL_VALUES and name not in meta.recorded:
                 continue
-            tail = parts[0].shapes[name][1:]
-            layout = h5py.VirtualLayout(shape=(total, *tail), dtype=dtype)
-            row = 0
-            for s in parts:
-                source = h5py.VirtualSource(
-                    shard_name(split, s.position), f"{split}/{name}", shape=(s.count, *tail)
-                )
-                layout[row : row + s.count] = source
-                row += s.count
-            group.create_virtual_dataset(name, layout)
+            sources = [(shard_name(split, s.position), s.count) for s in parts]
+            _create_virtual(group, name, dtype, parts[0].shapes[name][1:], sources)
 
     def _commit(self) -> None:
         """Rename the temporary folder onto the target; an existing output is moved aside first
@@ -215,3 +207,28 @@ class ShardedWriter:
                 shutil.rmtree(aside, ignore_errors=True)
             else:
                 aside.unlink(missing_ok=True)
+
+
+def _create_virtual(
+    group: h5py.Group,
+    name: str,
+    dtype: np.dtype,
+    tail: tuple[int, ...],
+    sources: list[tuple[str, int]],
+) -> None:
+    """A virtual dataset `name` stacking the dataset of the same path in each source file (file
+    name, rows) along its first axis. Built with h5py's low-level calls rather than
+    `Group.create_virtual_dataset`, which records the creation time: without it, the same data
+    gives the same bytes."""
+    shape = (sum(rows for _, rows in sources), *tail)
+    dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+    dcpl.set_obj_track_times(False)
+    source_name = f"{group.name}/{name}".encode()
+    start = 0
+    for file, rows in sources:
+        target = h5py.h5s.create_simple(shape)
+        target.select_hyperslab((start,) + (0,) * len(tail), (rows, *tail))
+        dcpl.set_virtual(target, file.encode(), source_name, h5py.h5s.create_simple((rows, *tail)))
+        start += rows
+    datatype = h5py.h5t.py_create(np.dtype(dtype), logical=True)
+    h5py.h5d.create(group.id, name.encode(), datatype, h5py.h5s.create_simple(shape), dcpl=dcpl)

@@ -71,6 +71,10 @@ def test_index_reads_as_the_single_file_would(sharded, tmp_path: Path) -> None:
             k: v for k, v in other.attrs.items() if k != "schema_version"
         }
         assert file["train/states"].is_virtual
+        # no creation times recorded (h5py's create_virtual_dataset would): same data, same bytes
+        for split in SPLITS:
+            for dataset in file[split].values():
+                assert h5py.h5o.get_info(dataset.id).ctime == 0
         np.testing.assert_array_equal(file["train/states"][2:5], other["train/states"][2:5])
 
 
