@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import gc
+import os
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -77,7 +79,12 @@ def generate_sharded(
 ) -> GenerationResult:
     """`generate_dataset` with `shard_size` (arguments checked there): the folder `out`."""
     check_target(out, overwrite)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:  # a file stands where the directory should be (as generation does)
+        raise NotADirectoryError(
+            errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(out.parent)
+        ) from None
     start = time.perf_counter()
     scenario = SCENARIOS[config.scenario]()
     meta = _dataset_meta(config, scenario, 0)
