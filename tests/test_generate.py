@@ -673,15 +673,20 @@ RAY = pytest.param(
 )
 
 
-@pytest.mark.parametrize("run", [(1, ()), (2, ()), RAY], ids=["workers1", "workers2", "ray"])
+SHARDS = (2, ("--shard-size", "10"))  # a pool per shard of 10, the temporary folder removed
+
+
+@pytest.mark.parametrize(
+    "run", [(1, ()), (2, ()), SHARDS, RAY], ids=["workers1", "workers2", "shards", "ray"]
+)
 @pytest.mark.parametrize(
     "sig, to_group",
     [(signal.SIGINT, True), (signal.SIGTERM, False)],
     ids=["ctrl-c-to-the-group", "sigterm-to-the-tool"],
 )
 def test_interrupted_run_leaves_no_file(tmp_path, sig, to_group, run):
-    out = tmp_path / "big.h5"
     workers, extra = run
+    out = tmp_path / ("big" if "--shard-size" in extra else "big.h5")
     process, seen = start_and_wait_for_progress(out, workers, extra=extra)
     try:
         if to_group:  # what a terminal's Ctrl-C does: the tool and its workers get SIGINT
