@@ -9,7 +9,8 @@ case; `val_fraction` of each case is split off for validation. The test split ho
 trajectories of each case. Trajectory k gets the seed SEED_STRIDE x seed + k, so every trajectory
 is reproducible on its own and the output does not depend on the number of workers. Every
 trajectory is checked (finite, no collision, no off-road car) before the file is written,
-atomically.
+atomically. With `shard_size`, the output is a folder of shard files and an index that reads as
+that one file, each shard written as soon as it is done (`pipeline.sharded_generation`).
 
 Speed: episodes are rolled out `batch_scenes` at a time (default
 `pipeline.episode_runner.DEFAULT_BATCH_SCENES`) as one batched world, which gives exactly the
@@ -168,6 +169,7 @@ class GenerationResult:
     num_agents: int  # cars per trajectory
     rejected: int  # unsafe episodes replaced with fresh seeds
     seconds: float  # wall time, writing included
+    shards: int = 0  # shard files beside `path` (then an index, schema 3); 0: a single file
 
     def describe(self) -> str:
         """Per-split counts, e.g. "train 40 major + 12 minor; val 10 major + 3 minor; ..."."""
@@ -178,8 +180,9 @@ class GenerationResult:
 
     def summary(self) -> str:
         """The one-line report tools/generate.py prints."""
+        shards = f" and {self.shards} shards" if self.shards else ""
         return (
-            f"wrote {self.path}: {self.describe()} ({self.num_agents} agents, "
+            f"wrote {self.path}{shards}: {self.describe()} ({self.num_agents} agents, "
             f"{self.meta.num_steps} steps of {self.meta.dt:g} s; {self.rejected} unsafe episodes "
             f"replaced) in {self.seconds:.1f} s"
         )
@@ -189,13 +192,14 @@ class UnsafeExpertError(RuntimeError):
     """Some planned trajectories stayed unsafe after MAX_ATTEMPTS rounds of fresh seeds."""
 
 
-def default_output(config: GenerateConfig) -> Path:
-    """data/<scenario>_<major>-major_<num_major>+<num_minor>_seed<seed>.h5 (relative path)."""
+def default_output(config: GenerateConfig, sharded: bool = False) -> Path:
+    """data/<scenario>_<major>-major_<num_major>+<num_minor>_seed<seed>.h5 (relative path);
+    `sharded`: the same without .h5, a folder (see `generate_dataset`)."""
     name = (
         f"{config.scenario}_{config.major_case}-major_{config.num_major}+{config.num_minor}"
-        f"_seed{config.seed}.h5"
+        f"_seed{config.seed}"
     )
-    return Path("data") / name
+    return Path("data") / (name if sharded else f"{name}.h5")
 
 
 def plan(config: GenerateConfig) -> list[Slot]:
@@ -380,6 +384,7 @@ def generate_dataset(
     backend: str = "local",
     address: str | None = None,
     batch_scenes: int = DEFAULT_BATCH_SCENES,
+    shard_size: int | None = None,
 ) -> GenerationResult:
     """Roll out `config`'s trajectories, check them, and write the dataset to `out` atomically.
 
@@ -392,11 +397,35 @@ def generate_dataset(
     written, ValueError for workers < 1 or batch_scenes < 1, UnsafeExpertError (see
     `generate_episodes`), and KeyboardInterrupt on Ctrl-C (SIGTERM too where a handler raises
     it), with nothing written.
+
+    `shard_size` (default None: one file): `out` is a folder (no .h5 suffix) of shard files of at
+    most `shard_size` trajectories of one split each, plus `out/index.h5`, which reads exactly as
+    the single file would (`predictor.shards`; the result's `path`). Each shard is written as soon
+    as it is done, so memory holds about one shard (`pipeline.sharded_generation`); the output
+    is the same for any `workers` and `backend`. An existing `out` is replaced (with
+    `overwrite`) only if it is a file or a sharded dataset's folder, else IsADirectoryError.
     """
     out = Path(out)
     if workers < 1:
         raise ValueError(f"workers must be at least 1, got {workers}")
     _check_int("batch_scenes", batch_scenes, 1)
+    if shard_size is not None:
+        _check_int("shard_size", shard_size, 1)
+        if out.suffix in (".h5", ".hdf5"):
+            raise ValueError(f"with shard_size, out names a folder (no .h5 suffix), got {out}")
+        from pipeline.sharded_generation import generate_sharded  # it builds on this module
+
+        return generate_sharded(
+            config,
+            out,
+            shard_size,
+            workers=workers,
+            overwrite=overwrite,
+            progress=progress,
+            backend=backend,
+            batch_scenes=batch_scenes,
+            address=address,
+        )
     _check_output(out, overwrite)
     start = time.perf_counter()
     slots, episodes, rejected = generate_episodes(

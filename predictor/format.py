@@ -1,4 +1,5 @@
-"""Trajectory dataset format, schema v2 (reads v1 too): reader, writer and validation.
+"""Trajectory dataset format, schema v2 (reads v1, and v3 indexes of shards): reader, writer and
+validation.
 
 The written contract is docs/dataset_format.md. One HDF5 file holds one scenario (or one real
 data set), split into `train`, `val` and `test`; each split is a `TrajectorySet` of time-major
@@ -15,6 +16,12 @@ same arrays whatever the source recorded. Code that needs real labels or states 
 `DatasetMeta.recorded` / `DatasetMeta.state_names` and fails with one line where they are absent.
 A schema-1 file reads as schema 2 with everything recorded and the first two agent slots focal
 (`legacy_focal`), which is what the metrics of schema 1 scored.
+
+Schema 3 is the index of a sharded dataset (written by `predictor.shards`): a schema-2 file whose
+split datasets are HDF5 virtual datasets over shard files beside it, listed in the root attribute
+`shards`. It reads like one file; the reader first checks that every listed shard is there and
+holds the rows, dtypes and shapes the index maps (HDF5 itself would read a missing shard as
+zeros) and fails with one line naming the shard otherwise.
 """
 
 from __future__ import annotations
@@ -33,8 +40,9 @@ import numpy as np
 from predictor import __version__
 
 FORMAT_NAME = "smooth-attention-trajectories"
-SCHEMA_VERSION = 2  # what the writer writes
-SUPPORTED_VERSIONS = (1, 2)  # what the reader reads
+SCHEMA_VERSION = 2  # what `write_dataset` writes (a single file, or one shard)
+INDEX_SCHEMA_VERSION = 3  # an index of shards (`predictor.shards`): schema 2 plus `shards`
+SUPPORTED_VERSIONS = (1, 2, 3)  # what the reader reads
 SPLITS = ("train", "val", "test")
 STATE_NAMES = ("x", "y", "heading", "speed")  # the synthetic scenarios' (and schema 1's) states
 ACTION_NAMES = ("steering", "acceleration")  # the synthetic scenarios' (and schema 1's) actions
@@ -81,6 +89,7 @@ _ROOT_ATTRS_V1 = (
     "package_version",
 )
 _ROOT_ATTRS = (*_ROOT_ATTRS_V1, "recorded")  # schema 2
+_ROOT_ATTRS_V3 = (*_ROOT_ATTRS, "shards")  # schema 3: an index of shards
 
 
 class FormatError(ValueError):
@@ -501,6 +510,8 @@ class _Reader:
             self.file = h5py.File(self.path, "r")
         except OSError as err:
             raise _fail(self.source, f"corrupt or truncated HDF5 file ({_short(err)})") from None
+        # schema 3 (an index): split -> [(shard file name, trajectories)] in row order; set by meta
+        self.shards: dict[str, list[tuple[str, int]]] | None = None
 
     def __enter__(self) -> _Reader:
         return self
@@ -518,6 +529,8 @@ class _Reader:
             recorded = OPTIONAL_FIELDS
         else:
             recorded = tuple(self._json(attrs, "recorded", list))
+        if version == INDEX_SCHEMA_VERSION:
+            self.shards = self._shard_table(attrs)
         meta = DatasetMeta(
             scenario=self._text(attrs, "scenario"),
             dt=self._number(attrs, "dt", float),
@@ -553,11 +566,33 @@ class _Reader:
                 self.source,
                 f"schema_version {version} is not supported (this reader reads {_versions_text()})",
             )
-        required = _ROOT_ATTRS_V1 if version == 1 else _ROOT_ATTRS
+        required = {1: _ROOT_ATTRS_V1, 2: _ROOT_ATTRS, 3: _ROOT_ATTRS_V3}[version]
         missing = [name for name in required if name not in attrs]
         if missing:
             raise _fail(self.source, f"missing root attribute(s) {missing}")
         return attrs
+
+    def _shard_table(self, attrs: dict) -> dict[str, list[tuple[str, int]]]:
+        """An index's root attribute `shards`, by split; every listed file must be beside it."""
+        table: dict[str, list[tuple[str, int]]] = {name: [] for name in SPLITS}
+        seen = set()
+        for entry in self._json(attrs, "shards", list):
+            if not isinstance(entry, dict) or sorted(entry) != ["count", "file", "split"]:
+                raise _fail(
+                    self.source, "attribute 'shards' must list {file, split, count} objects"
+                )
+            file, split, count = entry["file"], entry["split"], entry["count"]
+            if not isinstance(file, str) or Path(file).name != file or file.startswith("."):
+                raise _fail(self.source, f"shard {file!r} must be a file name beside the index")
+            if split not in SPLITS or file in seen:
+                raise _fail(self.source, f"shard {file} has split {split!r} or is listed twice")
+            if not isinstance(count, int) or isinstance(count, bool) or count < 1:
+                raise _fail(self.source, f"shard {file} has count {count!r}, expected >= 1")
+            if not (self.path.parent / file).is_file():
+                raise _fail(self.source, f"missing shard {file} (expected beside the index)")
+            seen.add(file)
+            table[split].append((file, count))
+        return table
 
     def split(self, name: str, meta: DatasetMeta) -> TrajectorySet:
         if name not in SPLITS:
@@ -570,7 +605,9 @@ class _Reader:
             arrays = self._datasets(group, meta, where)
             count = group.attrs.get("count")
         except OSError as err:
-            raise _fail(where, f"corrupt or truncated data ({_short(err)})") from None
+            broken = self._broken_shard(name) if self.shards else None
+            shard = f"shard {broken}: " if broken else ""
+            raise _fail(where, f"{shard}corrupt or truncated data ({_short(err)})") from None
         n, steps, agents = arrays["states"].shape[:3]
         for field_name, neutral in NEUTRAL_VALUES.items():  # absent optional data: neutral
             if field_name not in arrays:
@@ -596,7 +633,7 @@ class _Reader:
             extra = [f for f in OPTIONAL_FIELDS if f not in stored and f in group]
             if extra:
                 raise _fail(where, f"holds {extra} that the root attribute 'recorded' leaves out")
-        arrays = {}
+        datasets = {}
         for field_name in stored:
             dtype = _FIELDS[field_name][0]
             dataset = group.get(field_name)
@@ -606,8 +643,62 @@ class _Reader:
                 raise _fail(where, f"{field_name} has dtype {dataset.dtype}, expected {dtype}")
             if dataset.ndim != len(_FIELDS[field_name][1]):
                 raise _fail(where, f"{field_name} has shape {dataset.shape}")
-            arrays[field_name] = dataset[()]
-        return arrays
+            datasets[field_name] = dataset
+        if self.shards is not None:
+            datasets = self._mapped(group, datasets, where)
+        return {field_name: dataset[()] for field_name, dataset in datasets.items()}
+
+    def _mapped(self, group: h5py.Group, datasets: dict, where: str) -> dict:
+        """An index's split datasets, checked to map exactly its listed shards, each of which is
+        checked to hold those rows (HDF5 would read a missing source as zeros), and opened so that
+        the shards are looked for beside the index first."""
+        split = group.name.strip("/")
+        listed = self.shards[split]
+        access = h5py.h5p.create(h5py.h5p.DATASET_ACCESS)
+        access.set_virtual_prefix(os.fsencode(self.path.parent.absolute()) + b"/")
+        opened = {}
+        for field_name, dataset in datasets.items():
+            files = [s.file_name for s in dataset.virtual_sources()] if dataset.is_virtual else []
+            if files != [file for file, _ in listed]:
+                raise _fail(where, f"{field_name} does not map the shards listed in 'shards'")
+            if dataset.shape[0] != sum(count for _, count in listed):
+                raise _fail(where, f"{field_name} has {dataset.shape[0]} rows, unlike its shards")
+            opened[field_name] = h5py.Dataset(
+                h5py.h5d.open(group.id, field_name.encode(), dapl=access)
+            )
+        for file, count in listed:
+            self._check_shard(file, count, split, datasets)
+        return opened
+
+    def _check_shard(self, file: str, count: int, split: str, datasets: dict) -> None:
+        """The shard holds `count` rows of each of `split`'s datasets, as the index maps them."""
+        where = f"{self.source}: shard {file}"
+        try:
+            with h5py.File(self.path.parent / file, "r") as shard:
+                for field_name, mapped in datasets.items():
+                    source = shard.get(f"{split}/{field_name}")
+                    if not isinstance(source, h5py.Dataset):
+                        raise _fail(where, f"missing dataset {split}/{field_name}")
+                    expected = (count, *mapped.shape[1:])
+                    if source.dtype != mapped.dtype or source.shape != expected:
+                        raise _fail(
+                            where,
+                            f"{split}/{field_name} is {source.dtype} {source.shape}, "
+                            f"the index maps {mapped.dtype} {expected}",
+                        )
+        except OSError as err:
+            raise _fail(where, f"not a readable HDF5 file ({_short(err)})") from None
+
+    def _broken_shard(self, split: str) -> str | None:
+        """The first shard of `split` whose data cannot be read alone (after a read error)."""
+        for file, _ in self.shards[split]:
+            try:
+                with h5py.File(self.path.parent / file, "r") as shard:
+                    for dataset in shard[split].values():
+                        _ = dataset[()]
+            except (OSError, KeyError):
+                return file
+        return None
 
     def _text(self, attrs: dict, name: str) -> str:
         value = attrs[name]
@@ -658,15 +749,28 @@ def read_dataset(path: str | os.PathLike) -> tuple[DatasetMeta, dict[str, Trajec
         return meta, {name: reader.split(name, meta) for name in SPLITS}
 
 
+def shard_files(path: str | os.PathLike) -> list[Path]:
+    """The shard files of an index (schema 3), in split and row order; [] for a single file.
+
+    Checks that each is present (as every read does), not what it holds."""
+    with _Reader(path) as reader:
+        reader.meta()
+        if reader.shards is None:
+            return []
+        return [reader.path.parent / file for s in SPLITS for file, _ in reader.shards[s]]
+
+
 def summarize(path: str | os.PathLike) -> str:
     """Human-readable multi-line summary of a valid file (reads and validates all of it)."""
     meta, splits = read_dataset(path)
-    size_mb = Path(path).stat().st_size / 1e6
+    shards = shard_files(path)
+    size_mb = sum(p.stat().st_size for p in [Path(path), *shards]) / 1e6
+    where = f"index of {len(shards)} shards, " if shards else ""
     steps = meta.num_steps
     agents = sorted({s.num_agents for s in splits.values()})
     cases = list(meta.case_names)
     lines = [
-        f"file:      {path} ({size_mb:.2f} MB)",
+        f"file:      {path} ({where}{size_mb:.2f} MB)",
         f"format:    {FORMAT_NAME} schema v{meta.schema_version}, "
         f"written by package {meta.package_version}",
         f"scenario:  {meta.scenario}",

@@ -208,7 +208,12 @@ def _edit(path: Path, edit) -> None:
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
-        (lambda f: f.attrs.__setitem__("schema_version", 3), "schema_version 3 is not supported"),
+        (lambda f: f.attrs.__setitem__("schema_version", 4), "schema_version 4 is not supported"),
+        # schema 3 is an index of shards (tests/test_shards.py): it needs the list of them
+        (
+            lambda f: f.attrs.__setitem__("schema_version", 3),
+            r"missing root attribute\(s\) \['shards'\]",
+        ),
         (lambda f: f.attrs.__setitem__("format", "other"), "format is 'other'"),
         (lambda f: f.attrs.__delitem__("dt"), r"missing root attribute\(s\) \['dt'\]"),
         (lambda f: f.attrs.__setitem__("num_predicted", 3), "T=10 but num_observed"),

@@ -1,9 +1,10 @@
 """The Ray backend (pipeline.ray_backend) on a local Ray instance with 2 CPUs: generation through
-Ray writes the same bytes as the local backend; a reproduction sweep through Ray gives the same
-results and cache as the local backend, resumes from that cache, and reports a job that raises
-while the others finish; a task whose worker dies is retried, one that dies twice is reported;
-Ctrl-C cancels a Ray sweep and its rerun resumes; a missing Ray is one clear line. Skipped where
-Ray is not installed (`pip install -e '.[ray]'`; `make test` installs it)."""
+Ray writes the same bytes as the local backend, as one file or as shards; a reproduction sweep
+through Ray gives the same results and cache as the local backend, resumes from that cache, and
+reports a job that raises while the others finish; a task whose worker dies is retried, one
+that dies twice is reported; Ctrl-C cancels a Ray sweep and its rerun resumes; a missing Ray is
+one clear line. Skipped where Ray is not installed (`pip install -e '.[ray]'`; `make test`
+installs it)."""
 
 from __future__ import annotations
 
@@ -43,6 +44,19 @@ def test_generation_through_ray_writes_the_same_bytes(session, tmp_path):
     generate_dataset(config, tmp_path / "local.h5", progress=False, batch_scenes=1)  # one by one
     generate_dataset(config, tmp_path / "ray.h5", workers=2, progress=False, backend="ray")
     assert (tmp_path / "ray.h5").read_bytes() == (tmp_path / "local.h5").read_bytes()
+
+
+def test_sharded_generation_through_ray_writes_the_same_bytes(session, tmp_path):
+    config = GenerateConfig.for_scenario("halting_car", num_major=6, num_minor=3, num_test=4)
+    local = generate_dataset(config, tmp_path / "local", progress=False, shard_size=4)
+    remote = generate_dataset(
+        config, tmp_path / "ray", workers=2, progress=False, backend="ray", shard_size=4
+    )
+    files = sorted(p.name for p in local.path.parent.iterdir())
+    assert len(files) == 1 + local.shards == 6  # index; train 4 + 1, val 1 + 1, test 4 + 4
+    assert sorted(p.name for p in remote.path.parent.iterdir()) == files
+    for name in files:
+        assert (remote.path.parent / name).read_bytes() == (local.path.parent / name).read_bytes()
 
 
 # Task functions are defined inside the tests: Ray ships those by value, while a function of this

@@ -9,6 +9,11 @@ validation. The test split holds `--num-test` trajectories of each case. The wor
 `pipeline.generation.generate_dataset` (see there: seeds, determinism for any `--workers` and
 `--batch-scenes`, safety checks, atomic writing); Ctrl-C or SIGTERM ends it with exit status 130
 and no file.
+
+With `--shard-size N` the output is a folder (default data/<name> without .h5) of shard files of
+at most N trajectories of one split each, plus FOLDER/index.h5, which every tool reads as the one
+file (docs/dataset_format.md, "Sharded datasets"); each shard is written as soon as it is done,
+so a dataset larger than memory can be generated.
 """
 
 from __future__ import annotations
@@ -111,7 +116,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--out",
         default=None,
-        help="output file (default data/<scenario>_<major>-major_<M>+<m>_seed<S>.h5)",
+        help="output file (default data/<scenario>_<major>-major_<M>+<m>_seed<S>.h5), or "
+        "with --shard-size the output folder (default the same without .h5)",
+    )
+    parser.add_argument(
+        "--shard-size",
+        type=int,
+        default=None,
+        metavar="N",
+        help="write a folder of shard files of at most N trajectories per split plus "
+        "FOLDER/index.h5, read as one dataset; for outputs larger than memory (default: one file)",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     return parser.parse_args(argv)
@@ -146,7 +160,12 @@ def main(argv: list[str] | None = None) -> None:
         fail(f"--workers must be at least 1, got {args.workers}")
     if args.batch_scenes < 1:
         fail(f"--batch-scenes must be at least 1, got {args.batch_scenes}")
-    out = Path(args.out) if args.out is not None else default_output(config)
+    sharded = args.shard_size is not None
+    if sharded and args.shard_size < 1:
+        fail(f"--shard-size must be at least 1, got {args.shard_size}")
+    out = Path(args.out) if args.out is not None else default_output(config, sharded)
+    if sharded and out.suffix in (".h5", ".hdf5"):
+        fail(f"with --shard-size, --out names a folder (its index is FOLDER/index.h5), got {out}")
     try:
         result = generate_dataset(
             config,
@@ -156,13 +175,14 @@ def main(argv: list[str] | None = None) -> None:
             backend=args.backend,
             address=args.address,
             batch_scenes=args.batch_scenes,
+            shard_size=args.shard_size,
         )
     except KeyboardInterrupt:
         fail("interrupted; nothing was written", code=130)
     except FileExistsError:
         fail(f"output {out} already exists; pass --overwrite to replace it")
     except IsADirectoryError:
-        fail(f"output {out} is a directory")
+        fail(f"output {out} is a directory" + (" but not a sharded dataset" if sharded else ""))
     except UnsafeExpertError as error:
         fail(str(error), code=1)
     except RayUnavailableError as error:
