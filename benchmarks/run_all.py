@@ -1,7 +1,9 @@
 """Run every benchmark (benchmarks/bench_*.py) and collect their figures.
 
 Each benchmark prints one JSON line last; this writes them all to benchmarks/results.json and
-refreshes the table between the result markers in benchmarks/README.md.
+refreshes the table between the result markers in benchmarks/README.md. With --only, the named
+benchmarks' entries are replaced and the others kept from the last run; every entry carries the
+date it was measured.
 Usage: python benchmarks/run_all.py [--only simulator,env,...]
 """
 
@@ -61,6 +63,19 @@ def table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def merged(new: list[dict], path: Path, fallback_date: str) -> list[dict]:
+    """`new` results with the entries of the other benchmarks in the results file `path` (each
+    keeps its own date; older entries without one get the file's), ordered by name."""
+    kept = []
+    if path.exists():
+        old = json.loads(path.read_text())
+        names = {r["benchmark"] for r in new}
+        for entry in old.get("results", []):
+            if entry.get("benchmark") not in names:
+                kept.append({**entry, "date": entry.get("date", old.get("date", fallback_date))})
+    return sorted(new + kept, key=lambda r: r["benchmark"])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description="run every benchmark")
     parser.add_argument("--only", default="", help="comma-separated benchmark names (default all)")
@@ -71,19 +86,25 @@ def main() -> None:
         for p in sorted(HERE.glob("bench_*.py"))
         if not wanted or p.stem.removeprefix("bench_") in wanted
     ]
-    results = [run_benchmark(script) for script in scripts]
+    today = time.strftime("%Y-%m-%d")
+    results = [{**run_benchmark(script), "date": today} for script in scripts]
+    if wanted:  # keep the other benchmarks' last figures
+        results = merged(results, HERE / "results.json", today)
     record = {
-        "date": time.strftime("%Y-%m-%d"),
+        "date": today,
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
         f"Python {platform.python_version()}",
-        "command": "make bench (python benchmarks/run_all.py)",
+        "command": f"python benchmarks/run_all.py --only {args.only}"
+        if wanted
+        else "make bench (python benchmarks/run_all.py)",
         "results": results,
     }
     (HERE / "results.json").write_text(json.dumps(record, indent=2) + "\n")
     readme = HERE / "README.md"
     text = readme.read_text()
     block = (
-        f"{START}\nLast `make bench`: {record['date']}, {record['machine']}.\n\n"
+        f"{START}\nLast run: {record['date']}, `{record['command']}`, {record['machine']}; "
+        "each benchmark's `date` row says when its figures were measured.\n\n"
         f"{table(results)}\n{END}"
     )
     if START in text and END in text:
