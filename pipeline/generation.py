@@ -34,6 +34,7 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -226,6 +227,44 @@ def is_safe(episode: Episode) -> bool:
     return bool(finite and not episode.collided and not episode.off_road)
 
 
+@contextlib.contextmanager
+def rollout_session(
+    config: GenerateConfig,
+    total: int,
+    workers: int,
+    progress: bool,
+    backend: str,
+    address: str | None,
+    batch_scenes: int,
+) -> Iterator[tuple[Callable[[list[Slot]], list[Episode]], tqdm]]:
+    """A function rolling out slots in order (`run_slots`), and its progress bar of `total`
+    trajectories, inside a Ray session if asked and with signals deferred: what
+    `generate_episodes` and the sharded generator (`pipeline.sharded_generation`) roll out
+    their rounds with."""
+    bar = tqdm(
+        total=total,
+        desc=f"generate {config.scenario}",
+        unit="traj",
+        file=sys.stderr,
+        dynamic_ncols=True,
+        disable=not progress,
+    )
+    with contextlib.ExitStack() as stack:
+        if backend == "ray":
+            from pipeline.ray_backend import ray_session
+
+            stack.enter_context(ray_session(address, workers))
+        signals = stack.enter_context(DeferredSignals())
+        stack.enter_context(bar)
+
+        def roll_out(slots: list[Slot]) -> list[Episode]:
+            # locally, no more processes than slots (a replacement or two run here)
+            count = workers if backend == "ray" else min(workers, len(slots))
+            return run_slots(slots, config.scenario, count, bar, signals, backend, batch_scenes)
+
+        yield roll_out, bar
+
+
 def generate_episodes(
     config: GenerateConfig,
     *,
@@ -256,31 +295,12 @@ def generate_episodes(
     episodes: list[Episode | None] = [None] * len(slots)
     pending = list(range(len(slots)))
     rejected = 0
-    bar = tqdm(
-        total=len(slots),
-        desc=f"generate {config.scenario}",
-        unit="traj",
-        file=sys.stderr,
-        dynamic_ncols=True,
-        disable=not progress,
-    )
-    with contextlib.ExitStack() as stack:
-        if backend == "ray":
-            from pipeline.ray_backend import ray_session
-
-            stack.enter_context(ray_session(address, workers))
-        signals = stack.enter_context(DeferredSignals())
-        stack.enter_context(bar)
+    with rollout_session(config, len(slots), workers, progress, backend, address, batch_scenes) as (
+        roll_out,
+        bar,
+    ):
         for _ in range(MAX_ATTEMPTS):
-            results = run_slots(
-                [slots[i] for i in pending],
-                config.scenario,
-                workers,
-                bar,
-                signals,
-                backend,
-                batch_scenes,
-            )
+            results = roll_out([slots[i] for i in pending])
             retry = []
             for index, episode in zip(pending, results):
                 if is_safe(episode):

@@ -19,20 +19,17 @@ every shard has had its first round (rare: the shipped experts are almost always
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import errno
 import gc
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
-from tqdm import tqdm
-
 from pipeline.backends import BACKENDS
-from pipeline.episode_runner import DEFAULT_BATCH_SCENES, DeferredSignals, run_slots
+from pipeline.episode_runner import DEFAULT_BATCH_SCENES
 from pipeline.generation import (
     MAX_ATTEMPTS,
     SEED_STRIDE,
@@ -44,6 +41,7 @@ from pipeline.generation import (
     _to_trajectory_set,
     is_safe,
     plan,
+    rollout_session,
 )
 from predictor.shards import ShardedWriter, check_target
 from scenarios import SCENARIOS
@@ -153,7 +151,7 @@ def roll_out_by_shard(
     waiting: list[tuple[str, int, list[int]]] = []  # shards held for a second replacement
     held: dict[int, Episode] = {}  # their episodes by plan index
     pending: list[int] = []  # their unsafe slots, in plan order
-    with _rollouts(config, len(slots), workers, progress, backend, address, batch_scenes) as (
+    with rollout_session(config, len(slots), workers, progress, backend, address, batch_scenes) as (
         roll_out,
         bar,
     ):
@@ -201,40 +199,3 @@ def roll_out_by_shard(
             write(split, position, [held[i] for i in shard])
         gc.collect()  # as in generate_episodes: pymunk objects freed while signals are deferred
     return rejected
-
-
-@contextlib.contextmanager
-def _rollouts(
-    config: GenerateConfig,
-    total: int,
-    workers: int,
-    progress: bool,
-    backend: str,
-    address: str | None,
-    batch_scenes: int,
-) -> Iterator[tuple[Callable[[list[Slot]], list[Episode]], tqdm]]:
-    """A function rolling out slots in order, and its progress bar of `total` trajectories,
-    inside a Ray session if asked and with signals deferred (as `generation.generate_episodes`
-    sets up its rounds)."""
-    bar = tqdm(
-        total=total,
-        desc=f"generate {config.scenario}",
-        unit="traj",
-        file=sys.stderr,
-        dynamic_ncols=True,
-        disable=not progress,
-    )
-    with contextlib.ExitStack() as stack:
-        if backend == "ray":
-            from pipeline.ray_backend import ray_session
-
-            stack.enter_context(ray_session(address, workers))
-        signals = stack.enter_context(DeferredSignals())
-        stack.enter_context(bar)
-
-        def roll_out(slots: list[Slot]) -> list[Episode]:
-            # locally, no more processes than slots (a replacement or two run here)
-            count = workers if backend == "ray" else min(workers, len(slots))
-            return run_slots(slots, config.scenario, count, bar, signals, backend, batch_scenes)
-
-        yield roll_out, bar
