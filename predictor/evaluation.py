@@ -39,7 +39,8 @@ from predictor.metrics import (
     headline,
     prediction_mask,
 )
-from predictor.model import SmoothAttentionPredictor, expand_attention
+from predictor.model import SmoothAttentionPredictor
+from predictor.outputs import expand_attention
 from predictor.predictions import Predictions
 
 CHECKPOINT_FORMAT = "smooth-attention-checkpoint"

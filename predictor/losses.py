@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from predictor.model import Gaussian2D, ModelOutput
+from predictor.outputs import Gaussian2D, ModelOutput
 
 LOG_2PI = math.log(2.0 * math.pi)
 

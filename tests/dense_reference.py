@@ -16,13 +16,8 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from predictor.agent_frame import AgentFrame, rotate
-from predictor.model import (
-    RecurrentState,
-    SmoothAttentionPredictor,
-    StepOutputs,
-    _Steps,
-    edge_index,
-)
+from predictor.model import SmoothAttentionPredictor, _Steps
+from predictor.outputs import RecurrentState, StepOutputs, edge_index
 
 
 def edge_present(present: Tensor, head: Tensor) -> Tensor:

@@ -12,7 +12,8 @@ import torch
 from predictor.agent_frame import agent_frames, rotate, rotate_tril
 from predictor.config import PRESETS, ModelConfig, TrainConfig, make_configs, resolve_roles
 from predictor.losses import LossWeights, compute_loss
-from predictor.model import Gaussian2D, ModelOutput, SmoothAttentionPredictor
+from predictor.model import SmoothAttentionPredictor
+from predictor.outputs import Gaussian2D, ModelOutput
 from predictor.training import learning_rate
 
 torch.set_num_threads(1)

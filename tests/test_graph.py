@@ -18,7 +18,8 @@ from predictor.graph import (
     segment_uniform,
 )
 from predictor.losses import LossWeights, compute_loss
-from predictor.model import SmoothAttentionPredictor, expand_attention
+from predictor.model import SmoothAttentionPredictor
+from predictor.outputs import expand_attention
 
 torch.set_num_threads(1)
 

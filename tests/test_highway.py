@@ -19,7 +19,8 @@ from predictor.highway import (
     neighbour_features,
     velocity_changes,
 )
-from predictor.model import SmoothAttentionPredictor, edge_index
+from predictor.model import SmoothAttentionPredictor
+from predictor.outputs import edge_index
 
 torch.set_num_threads(1)
 

@@ -16,7 +16,7 @@ from predictor.losses import (
     safe_sqrt,
     variance_penalty,
 )
-from predictor.model import Gaussian2D, ModelOutput
+from predictor.outputs import Gaussian2D, ModelOutput
 
 
 def random_gaussians(shape: tuple[int, ...], seed: int = 0) -> Gaussian2D:

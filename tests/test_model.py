@@ -8,7 +8,8 @@ import torch
 from predictor.config import ModelConfig, make_configs
 from predictor.graph import neighbour_graph
 from predictor.losses import attention_tv
-from predictor.model import Gaussian2D, SmoothAttentionPredictor, edge_index, expand_attention
+from predictor.model import SmoothAttentionPredictor
+from predictor.outputs import Gaussian2D, edge_index, expand_attention
 
 torch.set_num_threads(1)
 
