@@ -3,7 +3,7 @@
 Each benchmark prints one JSON line last; this writes them all to benchmarks/results.json and
 refreshes the table between the result markers in benchmarks/README.md. With --only, the named
 benchmarks' entries are replaced and the others kept from the last run; every entry carries the
-date it was measured.
+date and machine it was measured on.
 Usage: python benchmarks/run_all.py [--only simulator,env,...]
 """
 
@@ -65,14 +65,16 @@ def table(results: list[dict]) -> str:
 
 def merged(new: list[dict], path: Path, fallback_date: str) -> list[dict]:
     """`new` results with the entries of the other benchmarks in the results file `path` (each
-    keeps its own date; older entries without one get the file's), ordered by name."""
+    keeps its own date and machine; older entries without them get the file's), ordered by
+    name."""
     kept = []
     if path.exists():
         old = json.loads(path.read_text())
         names = {r["benchmark"] for r in new}
         for entry in old.get("results", []):
             if entry.get("benchmark") not in names:
-                kept.append({**entry, "date": entry.get("date", old.get("date", fallback_date))})
+                dated = {"date": old.get("date", fallback_date), "machine": old.get("machine")}
+                kept.append({**dated, **entry})
     return sorted(new + kept, key=lambda r: r["benchmark"])
 
 
@@ -81,19 +83,27 @@ def main() -> None:
     parser.add_argument("--only", default="", help="comma-separated benchmark names (default all)")
     args = parser.parse_args()
     wanted = {name for name in args.only.split(",") if name}
+    known = {p.stem.removeprefix("bench_") for p in HERE.glob("bench_*.py")}
+    if wanted - known:
+        print(
+            f"run_all.py: error: unknown benchmark(s) {', '.join(sorted(wanted - known))}; "
+            f"choose from {', '.join(sorted(known))}",
+            file=sys.stderr,
+        )
+        raise SystemExit(2)
     scripts = [
         p
         for p in sorted(HERE.glob("bench_*.py"))
         if not wanted or p.stem.removeprefix("bench_") in wanted
     ]
     today = time.strftime("%Y-%m-%d")
-    results = [{**run_benchmark(script), "date": today} for script in scripts]
+    machine = f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    results = [{**run_benchmark(script), "date": today, "machine": machine} for script in scripts]
     if wanted:  # keep the other benchmarks' last figures
         results = merged(results, HERE / "results.json", today)
     record = {
         "date": today,
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
-        f"Python {platform.python_version()}",
+        "machine": machine,
         "command": f"python benchmarks/run_all.py --only {args.only}"
         if wanted
         else "make bench (python benchmarks/run_all.py)",

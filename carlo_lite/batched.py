@@ -121,7 +121,10 @@ class BatchedWorld:
         return self.step_count * self.dt
 
     def scene(self, index: int) -> World:
-        """Scene `index` as an independent `World` (same state, clock and bodies)."""
+        """Scene `index` as an independent `World` (same state, clock and bodies); IndexError
+        outside [0, num_scenes)."""
+        if not 0 <= index < self.num_scenes:
+            raise IndexError(f"scene {index} out of range: this world has {self.num_scenes}")
         cars = slice(index * self.num_cars, (index + 1) * self.num_cars)
         world = World(
             self.road,

@@ -666,15 +666,29 @@ class _Reader:
             opened[field_name] = h5py.Dataset(
                 h5py.h5d.open(group.id, field_name.encode(), dapl=access)
             )
-        for file, count in listed:
-            self._check_shard(file, count, split, datasets)
+        for position, (file, count) in enumerate(listed):
+            self._check_shard(file, position, count, split, datasets)
         return opened
 
-    def _check_shard(self, file: str, count: int, split: str, datasets: dict) -> None:
-        """The shard holds `count` rows of each of `split`'s datasets, as the index maps them."""
+    def _check_shard(
+        self, file: str, position: int, count: int, split: str, datasets: dict
+    ) -> None:
+        """The shard is this dataset's block `position` of `split` (its `config` says so, and
+        its description matches the index's: a swapped or foreign shard of the same shape is
+        refused) and holds `count` rows of each of `split`'s datasets, as the index maps them."""
         where = f"{self.source}: shard {file}"
         try:
             with h5py.File(self.path.parent / file, "r") as shard:
+                attrs = dict(shard.attrs)
+                try:
+                    label = json.loads(attrs.get("config", "{}")).get("shard")
+                except (TypeError, ValueError, AttributeError):
+                    label = None
+                if label != {"split": split, "index": position}:
+                    raise _fail(where, f"is not block {position} of {split} (its config: {label})")
+                for name in _SHARD_SHARED_ATTRS:
+                    if not _same_attr(attrs.get(name), self.file.attrs.get(name)):
+                        raise _fail(where, f"root attribute {name!r} differs from the index's")
                 for field_name, mapped in datasets.items():
                     source = shard.get(f"{split}/{field_name}")
                     if not isinstance(source, h5py.Dataset):
@@ -724,6 +738,29 @@ class _Reader:
         if not isinstance(value, kind):
             raise _fail(self.source, f"attribute {name!r} must be a JSON {kind.__name__}")
         return value
+
+
+# root attributes a shard shares with its index (its config adds "shard"; the index's adds
+# the whole run's totals)
+_SHARD_SHARED_ATTRS = (
+    "format",
+    "scenario",
+    "dt",
+    "num_observed",
+    "num_predicted",
+    "case_names",
+    "major_case",
+    "role_names",
+    "state_names",
+    "action_names",
+    "recorded",
+    "package_version",
+)
+
+
+def _same_attr(a: object, b: object) -> bool:
+    """Equal HDF5 attribute values (numpy scalars and strings alike)."""
+    return a is not None and b is not None and bool(np.all(np.asarray(a) == np.asarray(b)))
 
 
 def _short(err: BaseException) -> str:

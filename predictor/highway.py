@@ -9,7 +9,9 @@ history does not explain, which is where the other agents enter.
 
 The map is fitted in closed form on the training split when the model's normalisation is
 (ridge regression, alpha by grouped cross-validation, one map per agent role, as the ridge
-baseline) and kept as buffers in the checkpoint; training does not change it. Inputs: the
+baseline) and kept as buffers in the checkpoint; training does not change it, except that with
+`ModelConfig.attended_refit` it is refitted at every epoch start jointly with the attended map
+(`SmoothAttentionPredictor.refit_attended`). Inputs: the
 last `highway_steps` velocities p^t - p^{t-1} in the agent's frame [m/step] and their
 differences. Output: per
 predicted step k, the velocity change v^{T_obs+k} - v^{T_obs-1} in the agent's frame

@@ -137,7 +137,9 @@ class SmoothAttentionPredictor(nn.Module):
             folds = CROSS_FIT_FOLDS  # the maps that training scenes use (cross-fitting)
             self.register_buffer("highway_fold_weight", torch.zeros(folds, *shape, 2))
             self.register_buffer("highway_fold_bias", torch.zeros(folds, shape[0], shape[2], 2))
-        if config.highway_attended:  # statistics fitted with the normalisation, map learnt
+        # the attended highway: statistics fitted with the normalisation; the map learnt by
+        # gradient, or (attended_refit) refitted in closed form at every epoch start
+        if config.highway_attended:
             features = 2 * config.highway_steps + 2  # relative position and velocities
             self.register_buffer("attended_mean", torch.zeros(features))
             self.register_buffer("attended_std", torch.ones(features))

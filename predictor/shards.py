@@ -34,6 +34,7 @@ import numpy as np
 
 from predictor.format import (
     _FIELDS,
+    FORMAT_NAME,
     INDEX_SCHEMA_VERSION,
     NEUTRAL_VALUES,
     SPLITS,
@@ -54,8 +55,17 @@ def shard_name(split: str, position: int) -> str:
 
 
 def is_sharded_dataset(folder: str | os.PathLike) -> bool:
-    """Whether `folder` is a directory holding an index file (what `ShardedWriter` writes)."""
-    return (Path(folder) / INDEX_NAME).is_file()
+    """Whether `folder` is a directory holding an index file that `ShardedWriter` wrote (this
+    format's schema 3): only such a folder is ever replaced with `overwrite`."""
+    index = Path(folder) / INDEX_NAME
+    if not index.is_file():
+        return False
+    try:
+        with h5py.File(index, "r") as file:
+            kind, version = file.attrs.get("format"), file.attrs.get("schema_version")
+    except OSError:
+        return False
+    return kind == FORMAT_NAME and version is not None and int(version) == INDEX_SCHEMA_VERSION
 
 
 def check_target(folder: str | os.PathLike, overwrite: bool) -> None:

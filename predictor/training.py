@@ -544,7 +544,10 @@ def _one_epoch(
 ) -> dict:
     """Train one epoch, validate if due, update the best score; returns the metrics record."""
     started = time.perf_counter()
-    if state.refit_scenes is not None:  # the highway read with this epoch's attention
+    learned = state.model.config.attention_mode == "learned"
+    # the highway read with this epoch's attention; uniform or oracle attention never changes,
+    # so its fit at the first epoch (kept in the checkpoint) holds for every later one
+    if state.refit_scenes is not None and (learned or epoch == 1):
         scenes = state.refit_scenes
         state.model.refit_attended(
             scenes.positions, scenes.valid, num_observed, scenes.attention, scenes.roles

@@ -5,7 +5,7 @@ A `BatchedExpert` holds the plans of B episodes of one scenario (drawn per scene
 scenes: `update(world)` advances every scene's state machine, `expert_actions(world)` gives the
 controls (B, N, 2), `attention_labels` (B, N) and `interaction` (B,) the labels. Each method
 mirrors its `Scenario` counterpart operation for operation, so every scene's episode is bit for
-bit the one `scenarios.rollout` records (tested in tests/test_batched.py).
+bit the one `scenarios.rollout` records (tested in tests/test_batched_rollout.py).
 
 Float semantics, the one trap: where the per-scene expert works on numpy *scalars* (one car's
 speed and gap), numpy's scalar `x ** y` calls the C library's `pow`, while the same power on an

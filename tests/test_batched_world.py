@@ -83,6 +83,9 @@ def test_scene_is_an_independent_world_of_the_same_state():
     world.step(controls[2])
     batched.step(controls)
     np.testing.assert_array_equal(world.state, batched.state[2])
+    for outside in (-1, 4):
+        with pytest.raises(IndexError, match=f"scene {outside} out of range"):
+            batched.scene(outside)
 
 
 def test_views_are_read_only_and_bad_controls_are_named():

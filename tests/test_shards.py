@@ -125,7 +125,9 @@ def test_missing_shard_is_one_line_naming_it(sharded) -> None:
 @pytest.mark.parametrize(
     ("damage", "message"),
     [
-        ("foreign", r"shard train-00001.h5: train/states is float32 \(1, 10, 4, 4\), the index "),
+        ("foreign", "shard train-00001.h5: is not block 1 of train"),
+        ("swapped", "shard train-00000.h5: is not block 0 of train"),
+        ("reshaped", r"shard train-00001.h5: train/states is float32 \(1, 10, 4, 4\), the index "),
         ("truncated", "shard train-00001.h5: not a readable HDF5 file"),
         ("chunk", "split 'train': shard train-00001.h5: corrupt or truncated data"),
     ],
@@ -133,9 +135,24 @@ def test_missing_shard_is_one_line_naming_it(sharded) -> None:
 def test_damaged_shard_is_one_line_naming_it(sharded, damage: str, message: str) -> None:
     index, splits = sharded
     shard = index.parent / "train-00001.h5"
-    if damage == "foreign":  # a valid file, but not the rows the index maps
+    if damage == "foreign":  # a valid dataset file, but not one of this index's shards
         shard.unlink()
         write_dataset(shard, make_meta(), {"train": splits["train"].subset(slice(0, 1))})
+    elif damage == "swapped":  # two shards of the same shape, exchanged
+        first = index.parent / "train-00000.h5"
+        with h5py.File(first, "r") as a, h5py.File(shard, "r") as b:
+            assert a["train/states"].shape == b["train/states"].shape
+        swap = index.parent / "swap"
+        first.rename(swap)
+        shard.rename(first)
+        swap.rename(shard)
+    elif damage == "reshaped":  # labelled as the right block, holding other rows
+        with h5py.File(shard, "r") as file:
+            attrs = dict(file.attrs)
+        shard.unlink()
+        write_dataset(shard, make_meta(), {"train": splits["train"].subset(slice(0, 1))})
+        with h5py.File(shard, "r+") as file:
+            file.attrs["config"] = attrs["config"]
     elif damage == "truncated":
         shard.write_bytes(shard.read_bytes()[:1000])
     else:  # flip bytes inside the last compressed chunk of the shard
@@ -176,6 +193,15 @@ def test_refuses_existing_outputs_and_never_replaces_a_foreign_folder(tmp_path: 
     precious = tmp_path / "precious"
     precious.mkdir()
     (precious / "notes.txt").write_text("keep")
+    with pytest.raises(IsADirectoryError, match="not a sharded dataset"):
+        write_sharded(precious, splits, shard_size=3, overwrite=True)
+    assert (precious / "notes.txt").read_text() == "keep"
+    # a folder whose index.h5 is some other file (or another format's) is not ours either
+    (precious / INDEX_NAME).write_bytes(b"not hdf5")
+    with pytest.raises(IsADirectoryError, match="not a sharded dataset"):
+        write_sharded(precious, splits, shard_size=3, overwrite=True)
+    (precious / INDEX_NAME).unlink()
+    write_dataset(precious / INDEX_NAME, make_meta(), {"train": splits["train"]})  # schema 2
     with pytest.raises(IsADirectoryError, match="not a sharded dataset"):
         write_sharded(precious, splits, shard_size=3, overwrite=True)
     assert (precious / "notes.txt").read_text() == "keep"

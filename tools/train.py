@@ -122,7 +122,11 @@ def add_config_flag(parser, owner: str, name: str, value: object, note: str = ""
 
 def parse_args(argv: list[str] | None = None):
     parser = ArgumentParser(prog="train.py", description="Train a smooth-attention predictor.")
-    parser.add_argument("--data", required=True, help="dataset file (HDF5, schema v1)")
+    parser.add_argument(
+        "--data",
+        required=True,
+        help="dataset file (HDF5, schema 1 or 2) or a sharded dataset's FOLDER/index.h5",
+    )
     parser.add_argument("--out", required=True, help="run directory (created)")
     parser.add_argument(
         "--variant", default=None, choices=sorted(VARIANTS), help="model variant (default ours)"
