@@ -148,6 +148,15 @@ class ModelConfig:
     # from zero, the map read the uniform average (Double Merge v1, Correct: main-car test ADE
     # 1.714 m, where ridge on the labelled car reaches 1.369 m). Needs highway_attended.
     attended_refit: bool = False
+    # The highway's maps (own and attended) chosen per role *and* per relation to the attended
+    # agents: whether they lie ahead of the agent or behind it (the sign of sum_j theta_ij x_ij,
+    # their attention-weighted longitudinal position in the agent's frame, at the last observed
+    # step), twice the maps. A follower reads its leader differently from how a leader reads its
+    # follower, and one linear map per role cannot do both where a role is ahead in one case
+    # and behind in the other (Double Merge's colours): ridge with the labelled car, test ADE
+    # of the main cars 1.369 m with one map per colour, 0.822 m per colour and relation.
+    # Needs attended_refit.
+    highway_relation: bool = False
     # --- the neighbour graph (predictor.graph; fixed per window, edges only between agents
     # that are present; the edge RNN and the attention cost O(edges)) ---
     # "all": every other agent (the paper's complete graph, N(N-1) edges); "radius": the agents
@@ -190,6 +199,8 @@ class ModelConfig:
             raise ValueError("ModelConfig.highway_attended needs highway_steps")
         if self.attended_refit and not self.highway_attended:
             raise ValueError("ModelConfig.attended_refit needs highway_attended")
+        if self.highway_relation and not self.attended_refit:
+            raise ValueError("ModelConfig.highway_relation needs attended_refit")
         if self.highway_steps and self.rollout_prior != "anchored":
             raise ValueError("ModelConfig.highway_steps needs rollout_prior='anchored'")
         if not self.log_std_gain > 0:
@@ -425,7 +436,12 @@ def make_configs(
         if (model_overrides or {}).get("rollout_prior") == "anchored":
             raise ValueError(f"variant {variant!r} has no rollout loss to train rollout_prior")
         # the highway sits in the anchored rollout's prior, so it goes with it
-        no_highway = {"highway_steps": 0, "highway_attended": False, "attended_refit": False}
+        no_highway = {
+            "highway_steps": 0,
+            "highway_attended": False,
+            "attended_refit": False,
+            "highway_relation": False,
+        }
         preset_model = {**preset_model, "rollout_prior": "previous", **no_highway}
         model_overrides = {**(model_overrides or {}), **no_highway}
     model_overrides = {**preset_model, **(model_overrides or {})}
@@ -481,6 +497,7 @@ ADDED_MODEL_FIELDS: dict[str, Any] = {
     "highway_horizon": 45,
     "highway_attended": False,
     "attended_refit": False,
+    "highway_relation": False,
     "neighbours": "all",
     "neighbour_radius_m": 50.0,
     "neighbour_k": 16,

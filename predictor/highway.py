@@ -227,3 +227,19 @@ def attended_changes(
     standard = torch.where(mask.unsqueeze(-1), (features - mean) / std, 0.0)
     attended = (theta.unsqueeze(-1) * standard).sum(2)  # (B, N, F)
     return torch.einsum("bnf,bnfkc->bnkc", attended, weight)
+
+
+def relation_slots(roles: Tensor, theta: Tensor, features: Tensor, mask: Tensor) -> Tensor:
+    """The highway map of each agent under `ModelConfig.highway_relation` (B, N): 2 x role, or
+    2 x role + 1 where the attended agents lie behind it (sum_j theta_ij x_ij <= 0, x_ij the
+    longitudinal position of j in i's frame, `neighbour_features`' first channel). roles
+    (B, N), theta and mask (B, N, N-1), features (B, N, N-1, F)."""
+    along = torch.where(mask, features[..., 0], 0.0)  # (B, N, N-1)
+    ahead = (theta * along).sum(-1) > 0  # (B, N)
+    return 2 * roles + (~ahead).long()
+
+
+def uniform_attention(mask: Tensor) -> Tensor:
+    """Equal weights over each agent's usable edges (B, N, N-1) (zeros where it has none)."""
+    weights = mask.to(torch.get_default_dtype())
+    return weights / weights.sum(-1, keepdim=True).clamp(min=1.0)

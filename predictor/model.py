@@ -83,6 +83,8 @@ from predictor.highway import (
     future_offsets,
     history_features,
     neighbour_features,
+    relation_slots,
+    uniform_attention,
     velocity_changes,
 )
 from predictor.outputs import (
@@ -131,7 +133,7 @@ class SmoothAttentionPredictor(nn.Module):
             self._default_normalisation()
         if config.highway_steps:  # fitted with the normalisation (predictor.highway)
             features = 4 * config.highway_steps - 3  # velocities and their differences
-            shape = (max(config.num_roles, 1), features, config.highway_horizon)
+            shape = (self.num_maps, features, config.highway_horizon)
             self.register_buffer("highway_weight", torch.zeros(*shape, 2))
             self.register_buffer("highway_bias", torch.zeros(shape[0], shape[2], 2))
             folds = CROSS_FIT_FOLDS  # the maps that training scenes use (cross-fitting)
@@ -143,7 +145,7 @@ class SmoothAttentionPredictor(nn.Module):
             features = 2 * config.highway_steps + 2  # relative position and velocities
             self.register_buffer("attended_mean", torch.zeros(features))
             self.register_buffer("attended_std", torch.ones(features))
-            shape = (max(config.num_roles, 1), features, config.highway_horizon, 2)
+            shape = (self.num_maps, features, config.highway_horizon, 2)
             if config.attended_refit:  # refitted in closed form every epoch (refit_attended)
                 self.register_buffer("attended_weight", torch.zeros(shape))
                 self.register_buffer("attended_fold_weight", torch.zeros(CROSS_FIT_FOLDS, *shape))
@@ -167,6 +169,11 @@ class SmoothAttentionPredictor(nn.Module):
                 if layer is not None:
                     layer.weight.zero_()
                     layer.bias.zero_()
+
+    @property
+    def num_maps(self) -> int:
+        """Highway maps: one per role (one without roles), twice that with highway_relation."""
+        return max(self.config.num_roles, 1) * (2 if self.config.highway_relation else 1)
 
     def parameter_groups(self) -> list[list[nn.Parameter]]:
         """Parameters whose gradients come from separate losses (with `detach_covariance`: the
@@ -396,26 +403,31 @@ class SmoothAttentionPredictor(nn.Module):
         features, usable = history_features(
             steps.pos, steps.present, steps.num_observed, rotation, self.config.highway_steps
         )
-        roles = steps.role_index
-        if roles is None:
-            roles = torch.zeros(usable.shape, dtype=torch.long, device=usable.device)
+        slots = steps.role_index
+        if slots is None:
+            slots = torch.zeros(usable.shape, dtype=torch.long, device=usable.device)
+        edges = mask = None
+        if self.config.highway_attended:
+            edges, mask = self._neighbour_features(steps)
+            if self.config.highway_relation:
+                slots = relation_slots(slots, theta, edges, mask)
         weight, bias = agent_maps(
             self.highway_weight,
             self.highway_bias,
             self.highway_fold_weight,
             self.highway_fold_bias,
-            roles,
+            slots,
             steps.scenes,
         )  # (B, N, F, horizon, 2), (B, N, horizon, 2)
         change = velocity_changes(features, usable, weight, bias)  # (B, N, horizon, 2)
         if self.config.highway_attended:
-            change = change + self._attended(steps, theta, roles)
+            change = change + self._attended(steps, theta, slots, edges, mask)
         return rotate(change.permute(2, 0, 1, 3), rotation).permute(1, 2, 0, 3)
 
-    def _attended(self, steps: _Steps, theta: Tensor, roles: Tensor) -> Tensor:
-        """The attended highway's velocity changes (B, N, horizon, 2), agent frame [m/step]."""
+    def _neighbour_features(self, steps: _Steps) -> tuple[Tensor, Tensor]:
+        """The attended highway's edge features (B, N, N-1, F) and their mask (B, N, N-1)."""
         _, head = edge_index(steps.pos.shape[2], steps.pos.device)
-        features, mask = neighbour_features(
+        return neighbour_features(
             steps.pos,
             steps.present,
             steps.num_observed,
@@ -423,11 +435,17 @@ class SmoothAttentionPredictor(nn.Module):
             self.config.highway_steps,
             head,
         )
+
+    def _attended(
+        self, steps: _Steps, theta: Tensor, slots: Tensor, features: Tensor, mask: Tensor
+    ) -> Tensor:
+        """The attended highway's velocity changes (B, N, horizon, 2), agent frame [m/step];
+        slots (B, N): each agent's map."""
         if self.config.attended_refit and steps.scenes is not None:  # cross-fitted maps
-            fold = fold_of(steps.scenes, CROSS_FIT_FOLDS).unsqueeze(-1).expand_as(roles)
-            weight = self.attended_fold_weight[fold, roles]  # (B, N, F, horizon, 2)
+            fold = fold_of(steps.scenes, CROSS_FIT_FOLDS).unsqueeze(-1).expand_as(slots)
+            weight = self.attended_fold_weight[fold, slots]  # (B, N, F, horizon, 2)
         else:
-            weight = self.attended_weight[roles]  # (B, N, F, horizon, 2)
+            weight = self.attended_weight[slots]  # (B, N, F, horizon, 2)
         change = attended_changes(
             features, mask, theta, self.attended_mean, self.attended_std, weight
         )
@@ -465,17 +483,13 @@ class SmoothAttentionPredictor(nn.Module):
             )
             theta = self._block(steps, 0, num_observed, None).attention[-1]  # (B, N, N-1)
             parts.append(self._refit_samples(steps, theta))
-        own, attended, offsets, samples = (torch.cat(column) for column in zip(*parts))
-        role_index = (
-            roles.long() if cfg.num_roles > 0 else torch.zeros_like(samples, dtype=torch.long)
-        )
-        num_roles = self.highway_weight.shape[0]
+        own, attended, offsets, samples, slots = (torch.cat(column) for column in zip(*parts))
         weight, bias, fold_weight, fold_bias = fit_cross_fitted(
             torch.cat([own, attended], -1),
             offsets,
             samples,
-            role_index,
-            num_roles,
+            slots,
+            self.num_maps,
             cfg.highway_horizon,
         )
         split = own.shape[-1]
@@ -489,22 +503,24 @@ class SmoothAttentionPredictor(nn.Module):
 
     def _refit_samples(self, steps: _Steps, theta: Tensor) -> tuple[Tensor, ...]:
         """Regression samples of `refit_attended` for one batch: own features (B, N, F_own),
-        attended features sum_j theta_ij z_ij (B, N, F_att), future offsets (B, N, T_pred, 2)
-        and which agents to fit on (B, N)."""
+        attended features sum_j theta_ij z_ij (B, N, F_att), future offsets (B, N, T_pred, 2),
+        which agents to fit on (B, N) and each agent's map (B, N)."""
         rotation, t_obs = steps.frame[1], steps.num_observed
         own, usable = history_features(
             steps.pos, steps.present, t_obs, rotation, self.config.highway_steps
         )
-        _, head = edge_index(steps.pos.shape[2], steps.pos.device)
-        edges, mask = neighbour_features(
-            steps.pos, steps.present, t_obs, rotation, self.config.highway_steps, head
-        )
+        edges, mask = self._neighbour_features(steps)
+        slots = steps.role_index
+        if slots is None:
+            slots = torch.zeros(usable.shape, dtype=torch.long, device=usable.device)
+        if self.config.highway_relation:
+            slots = relation_slots(slots, theta, edges, mask)
         standard = torch.where(
             mask.unsqueeze(-1), (edges - self.attended_mean) / self.attended_std, 0.0
         )
         attended = (theta.unsqueeze(-1) * standard).sum(2)  # (B, N, F_att)
         offsets, complete = future_offsets(steps.pos, steps.present, t_obs, rotation)
-        return own, attended, offsets, usable & complete
+        return own, attended, offsets, usable & complete, slots
 
     def _run(
         self,
@@ -679,22 +695,20 @@ class SmoothAttentionPredictor(nn.Module):
             if self.config.num_roles > 0:
                 raise ValueError("the model reads agent roles; fit_normalisation needs them")
             roles = torch.zeros(usable.shape, dtype=torch.long)
-        num_roles, horizon = self.highway_weight.shape[0], self.config.highway_horizon
-        maps = fit_cross_fitted(
-            features, offsets, usable & complete, roles.long(), num_roles, horizon
-        )
-        buffers = ("highway_weight", "highway_bias", "highway_fold_weight", "highway_fold_bias")
-        for name, value in zip(buffers, maps):
-            getattr(self, name).copy_(value)
+        slots = roles.long()
         if self.config.highway_attended:  # standardisation over the usable edges
-            _, head = edge_index(steps.pos.shape[2], steps.pos.device)
-            edges, mask = neighbour_features(
-                steps.pos, steps.present, t_obs, rotation, self.config.highway_steps, head
-            )
+            edges, mask = self._neighbour_features(steps)
+            if self.config.highway_relation:  # before any attention: the uniform one
+                slots = relation_slots(slots, uniform_attention(mask), edges, mask)
             edges = edges[mask]  # (K, F)
             if len(edges) >= 2:
                 self.attended_mean.copy_(edges.mean(0))
                 self.attended_std.copy_(edges.std(0).clamp(min=MIN_STAT_STD))
+        horizon = self.config.highway_horizon
+        maps = fit_cross_fitted(features, offsets, usable & complete, slots, self.num_maps, horizon)
+        buffers = ("highway_weight", "highway_bias", "highway_fold_weight", "highway_fold_bias")
+        for name, value in zip(buffers, maps):
+            getattr(self, name).copy_(value)
 
     def _default_normalisation(self) -> None:
         """Unfitted scales: the car constants of the paper model (used when not standardise)."""

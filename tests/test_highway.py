@@ -17,6 +17,8 @@ from predictor.highway import (
     future_offsets,
     history_features,
     neighbour_features,
+    relation_slots,
+    uniform_attention,
     velocity_changes,
 )
 from predictor.model import SmoothAttentionPredictor
@@ -366,3 +368,85 @@ def test_attended_refit_needs_the_attended_highway():
     positions, valid = accelerating_scenes(batch=2, steps=10, agents=3)
     with pytest.raises(ValueError, match="needs ModelConfig.attended_refit"):
         model.refit_attended(positions, valid, 8)
+
+
+def mirrored_pair_scenes(batch: int, steps: int, num_observed: int, seed: int):
+    """Two cars of one role heading +x, one 15 m ahead of the other (which one varies by
+    scene), and a third car of another role. Every car accelerates at a constant random rate
+    over the observed steps; from T_obs - 1 on the rear car takes the front car's acceleration
+    and the front car the negative of the rear car's. The same role reads the other car with
+    opposite signs depending on which is ahead. Labels: the two cars attend each other."""
+    gen = torch.Generator().manual_seed(seed)
+    t = torch.arange(steps, dtype=torch.float64).view(1, -1, 1, 1)  # (1, T, 1, 1)
+    front_is_0 = torch.rand(batch, generator=gen) < 0.5  # (B,)
+    x0 = torch.where(front_is_0, 15.0, 0.0).double()
+    start = torch.zeros(batch, 3, 2, dtype=torch.float64)
+    start[:, 0, 0], start[:, 1, 0], start[:, 1, 1] = x0, 15.0 - x0, 3.5
+    start[:, 2] = torch.tensor([-20.0, -3.5], dtype=torch.float64)
+    speed = 2.0 + torch.rand(batch, 3, generator=gen, dtype=torch.float64)
+    velocity = torch.stack([speed, torch.zeros_like(speed)], -1)  # (B, N, 2)
+    accel = 0.05 * torch.randn(batch, 3, 2, generator=gen, dtype=torch.float64)  # observed
+    later = accel.clone()  # from T_obs - 1 on
+    sign = torch.where(front_is_0, -1.0, 1.0).double().view(-1, 1)  # car 0 reads car 1 so
+    later[:, 0], later[:, 1] = sign * accel[:, 1], -sign * accel[:, 0]
+    knee = num_observed - 1
+    before, after = t.clamp(max=knee), (t - knee).clamp(min=0)  # (1, T, 1, 1)
+    v_knee = velocity.unsqueeze(1) + accel.unsqueeze(1) * knee
+    positions = torch.where(
+        t <= knee,
+        start.unsqueeze(1) + velocity.unsqueeze(1) * before + accel.unsqueeze(1) * before**2 / 2,
+        start.unsqueeze(1)
+        + velocity.unsqueeze(1) * knee
+        + accel.unsqueeze(1) * knee**2 / 2
+        + v_knee * after
+        + later.unsqueeze(1) * after**2 / 2,
+    )
+    valid = torch.ones(batch, steps, 3, dtype=torch.bool)
+    labels = torch.full((batch, steps, 3), -1, dtype=torch.long)
+    labels[:, :, 0], labels[:, :, 1] = 1, 0
+    roles = torch.tensor([0, 0, 1]).expand(batch, 3)
+    return positions.float(), valid, labels, roles
+
+
+def test_relation_maps_read_a_car_ahead_and_a_car_behind_differently():
+    num_observed, steps = 8, 14
+    train = mirrored_pair_scenes(60, steps, num_observed, seed=1)
+    test = mirrored_pair_scenes(8, steps, num_observed, seed=2)
+    errors = {}
+    for relation in (False, True):
+        config = ModelConfig(
+            **REFIT,
+            attention_mode="oracle",
+            num_roles=2,
+            highway_attended=True,
+            attended_refit=True,
+            highway_relation=relation,
+        )
+        model = SmoothAttentionPredictor(config)
+        assert model.num_maps == (4 if relation else 2)
+        positions, valid, labels, roles = train
+        model.fit_normalisation(positions, valid, num_observed, roles)
+        model.refit_attended(positions, valid, num_observed, labels, roles)
+        positions, valid, labels, roles = test
+        out = model.predict(positions, valid, num_observed, labels, roles=roles).rollout.mean
+        truth = positions[:, num_observed:, :2]
+        errors[relation] = (out[:, :, :2] - truth).norm(dim=-1).max()
+    # one map per role must average the two readings; per relation each is exact
+    assert errors[False] > 0.05
+    assert errors[True] < 0.05 * errors[False]
+
+
+def test_relation_slots_follow_the_attention_weighted_position():
+    roles = torch.tensor([[0, 1, 1]])
+    features = torch.zeros(1, 3, 2, 4)
+    features[0, 0, :, 0] = torch.tensor([5.0, -1.0])  # agent 0: one ahead, one behind
+    features[0, 1, :, 0] = torch.tensor([-2.0, -3.0])  # agent 1: both behind
+    features[0, 2, :, 0] = torch.tensor([4.0, 1.0])  # agent 2: both ahead, one masked
+    mask = torch.tensor([[[True, True], [True, True], [False, True]]])
+    theta = torch.tensor([[[0.1, 0.9], [0.5, 0.5], [0.0, 1.0]]])
+    # agent 0: 0.1 * 5 - 0.9 * 1 < 0: behind; agent 1 behind; agent 2: 1.0 * 1 > 0: ahead
+    assert relation_slots(roles, theta, features, mask).tolist() == [[1, 3, 2]]
+    uniform = uniform_attention(mask)
+    assert uniform.tolist() == [[[0.5, 0.5], [0.5, 0.5], [0.0, 1.0]]]
+    # uniform: agent 0 sees 2 > 0 ahead
+    assert relation_slots(roles, uniform, features, mask).tolist() == [[0, 3, 2]]

@@ -137,7 +137,12 @@ def test_same_seed_same_run_and_files(braking_file: Path, tmp_path: Path):
     assert set(weights(tmp_path / "a", "best.pt")) == set(weights(tmp_path / "a"))
 
 
-REFIT_AGENT = {**TINY_MODEL, "highway_attended": True, "attended_refit": True}
+REFIT_AGENT = {
+    **TINY_MODEL,
+    "highway_attended": True,
+    "attended_refit": True,
+    "highway_relation": True,
+}
 
 
 @pytest.mark.parametrize("refit", [False, True], ids=["paper", "agent_refit"])

@@ -60,6 +60,7 @@ MODEL_FLAGS = (
     "highway_horizon",
     "highway_attended",
     "attended_refit",
+    "highway_relation",
     "neighbours",
     "neighbour_radius_m",
     "neighbour_k",
