@@ -146,7 +146,8 @@ class ModelConfig:
     # last observed step on the training scenes. Within an epoch the maps are fixed and the
     # attention gets the gradient of the best linear read-out of what it attends to; learnt
     # from zero, the map read the uniform average (Double Merge v1, Correct: main-car test ADE
-    # 1.714 m, where ridge on the labelled car reaches 1.369 m). Needs highway_attended.
+    # 1.714 m learnt, 1.494 m refitted; ridge on the labelled car 1.369 m). Off: measured
+    # seeds and trade-offs in docs/PREDICTOR.md. Needs highway_attended.
     attended_refit: bool = False
     # The highway's maps (own and attended) chosen per role *and* per relation to the attended
     # agents: whether they lie ahead of the agent or behind it (the sign of sum_j theta_ij x_ij,
@@ -154,8 +155,8 @@ class ModelConfig:
     # step), twice the maps. A follower reads its leader differently from how a leader reads its
     # follower, and one linear map per role cannot do both where a role is ahead in one case
     # and behind in the other (Double Merge's colours): ridge with the labelled car, test ADE
-    # of the main cars 1.369 m with one map per colour, 0.822 m per colour and relation.
-    # Needs attended_refit.
+    # of the main cars 1.369 m with one map per colour, 0.822 m per colour and relation. Off:
+    # with learned attention it was worse (docs/PREDICTOR.md). Needs attended_refit.
     highway_relation: bool = False
     # --- the neighbour graph (predictor.graph; fixed per window, edges only between agents
     # that are present; the edge RNN and the attention cost O(edges)) ---
