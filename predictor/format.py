@@ -742,20 +742,7 @@ class _Reader:
 
 # root attributes a shard shares with its index (its config adds "shard"; the index's adds
 # the whole run's totals)
-_SHARD_SHARED_ATTRS = (
-    "format",
-    "scenario",
-    "dt",
-    "num_observed",
-    "num_predicted",
-    "case_names",
-    "major_case",
-    "role_names",
-    "state_names",
-    "action_names",
-    "recorded",
-    "package_version",
-)
+_SHARD_SHARED_ATTRS = tuple(a for a in _ROOT_ATTRS if a not in ("schema_version", "config"))
 
 
 def _same_attr(a: object, b: object) -> bool:
