@@ -12,10 +12,13 @@ from conftest import REPO_ROOT, tool_env
 
 from predictor.baselines import (
     BASELINES,
+    RELATION_AHEAD,
+    RELATION_BEHIND,
     RIDGE_BASELINES,
     RidgeBaseline,
     RidgeConfig,
     constant_velocity,
+    relation_groups,
 )
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 from predictor.interaction import interaction_gain
@@ -62,6 +65,8 @@ def predict(model, states, roles, attention=None, valid=None):
 def test_baseline_names_map_to_ridge_configurations():
     assert set(BASELINES) == {"const_vel", *RIDGE_BASELINES}
     assert RidgeConfig.named("ridge_labelled").neighbours == "labelled"
+    named = RidgeConfig.named("ridge_labelled_relation")
+    assert (named.neighbours, named.groups) == ("labelled", "relation")
     with pytest.raises(ValueError, match="not a ridge baseline"):
         RidgeConfig.named("const_vel")
     for bad in ({"neighbours": "psychic"}, {"history_steps": 1}, {"folds": 1}, {"alphas": ()}):
@@ -169,13 +174,12 @@ def test_refuses_too_short_observations_and_unfitted_use():
         RidgeBaseline().fit(states, valid, attention, roles, 2, DT)
 
 
-def test_interaction_gain_finds_the_deciding_car_and_the_tool_prints_it(tmp_path):
-    """Through a dataset file: agent 0's future is decided by agent 1 (its label), so the
-    labelled car's history removes nearly all its error and a random car's does not."""
-    rng = np.random.default_rng(5)
+def write_gain_file(path, make_split, rng: np.random.Generator):
+    """A dataset file whose splits come from `make_split(rng, n)` -> states, attention, roles
+    (and optionally the case of each scene)."""
     splits = {}
     for name, n in (("train", 80), ("val", 4), ("test", 30)):
-        states, attention, roles = decided_by_neighbour(rng, n)
+        states, attention, roles, *case = make_split(rng, n)
         shape = states.shape[:3]
         splits[name] = TrajectorySet(
             states=states.astype(np.float32),
@@ -183,7 +187,7 @@ def test_interaction_gain_finds_the_deciding_car_and_the_tool_prints_it(tmp_path
             valid=np.ones(shape, bool),
             attention=attention,
             interaction=np.ones(shape[:2], bool),
-            case=np.zeros(n, np.int8),
+            case=case[0] if case else np.zeros(n, np.int8),
             seed=np.arange(n, dtype=np.int64),
             roles=roles,
         )
@@ -197,8 +201,34 @@ def test_interaction_gain_finds_the_deciding_car_and_the_tool_prints_it(tmp_path
         role_names=("attending", "attended", "far"),
         config={"made_by": "tests"},
     )
-    path = tmp_path / "gain.h5"
     write_dataset(path, meta, splits)
+    return path
+
+
+def ahead_or_behind(rng: np.random.Generator, n: int):
+    """`decided_by_neighbour`, but in case 1 (every other scene) agent 1 drives 6 m behind
+    agent 0 instead of 6 m ahead, and agent 0 drifts the other way: the same role reads its
+    labelled car with opposite signs by where that car is (as a Double Merge colour, the rear
+    car in one case and the front car in the other)."""
+    states, attention, roles = decided_by_neighbour(rng, n)
+    case = (np.arange(n) % 2).astype(np.int8)
+    heading = states[:, 0, 0, 2]
+    ahead = np.stack([np.cos(heading), np.sin(heading)], -1)  # (n, 2)
+    normal = np.stack([-np.sin(heading), np.cos(heading)], -1)
+    t0 = OBSERVED - 1
+    lateral = np.einsum("nc,nc->n", states[:, t0, 1, :2] - states[:, t0, 0, :2], normal)
+    k = np.arange(1, STEPS - t0)
+    drift = 0.05 * lateral[:, None] * k[None] ** 2  # agent 0's drift (decided_by_neighbour)
+    rows = case == 1
+    states[rows, :, 1, :2] -= 12.0 * ahead[rows, None]
+    states[rows, t0 + 1 :, 0, :2] -= 2.0 * drift[rows, :, None] * normal[rows, None]
+    return states, attention, roles, case
+
+
+def test_interaction_gain_finds_the_deciding_car_and_the_tool_prints_it(tmp_path):
+    """Through a dataset file: agent 0's future is decided by agent 1 (its label), so the
+    labelled car's history removes nearly all its error and a random car's does not."""
+    path = write_gain_file(tmp_path / "gain.h5", decided_by_neighbour, np.random.default_rng(5))
 
     (row,) = interaction_gain(path)  # only agent 0 has a label, all in case "only"
     assert (row.case, row.role, row.agents) == ("only", "attending", 30)
@@ -216,3 +246,39 @@ def test_interaction_gain_finds_the_deciding_car_and_the_tool_prints_it(tmp_path
     assert last[:3] == ["only", "attending", "30"]
     assert float(last[3]) == pytest.approx(row.own, abs=5e-4)
     assert float(last[4]) == pytest.approx(row.labelled, abs=5e-4)
+
+
+def test_relation_groups_read_the_labelled_car_ahead_and_behind(tmp_path):
+    """One regression per role cannot read a car whose effect flips sign with its place; per
+    relation to the labelled car (ahead or behind at the last observed step) it can."""
+    path = write_gain_file(tmp_path / "flip.h5", ahead_or_behind, np.random.default_rng(6))
+    by_role = {row.case: row for row in interaction_gain(path, grouping="role")}
+    by_relation = {row.case: row for row in interaction_gain(path, grouping="relation")}
+    assert set(by_role) == set(by_relation) == {"only", "never"}
+    for case in ("only", "never"):
+        assert by_role[case].own == pytest.approx(by_relation[case].own, rel=0.5)
+        assert by_role[case].gain < 0.5  # the two signs cancel in one map
+        assert by_relation[case].gain > 0.9 and abs(by_relation[case].control) < 0.2
+    with pytest.raises(ValueError, match="groups must be one of"):
+        interaction_gain(path, grouping="colour")
+
+
+def test_relation_groups_by_hand():
+    """Agent 0 faces +x with its label ahead, agent 1 faces +x with its label behind, agent 2
+    faces -x (heading pi) with its label at larger x, so behind it; agent 3 has no label and
+    keeps its role. Without a heading channel the frame is the last displacement's."""
+    states = np.zeros((1, 3, 4, 3))  # x, y, heading
+    states[0, :, :, 0] = [0.0, 5.0, 10.0, 20.0]
+    states[0, :, 2, 2] = np.pi
+    attention = np.full((1, 3, 4), -1, np.int16)
+    attention[0, :, :3] = [1, 0, 3]
+    roles = np.array([[0, 0, 1, 1]], np.int8)
+    ahead, behind = RELATION_AHEAD, RELATION_BEHIND
+    np.testing.assert_array_equal(
+        relation_groups(states, attention, roles, 3), [[ahead, behind, behind, 1]]
+    )
+    moving = states[..., :2].copy()
+    moving[0, :, :, 0] += np.array([0.0, 1.0, 2.0])[:, None] * [1.0, 1.0, -1.0, 1.0]
+    np.testing.assert_array_equal(
+        relation_groups(moving, attention, roles, 3), [[ahead, behind, behind, 1]]
+    )

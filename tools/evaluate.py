@@ -8,7 +8,9 @@ Examples:
 Baselines (predictor/baselines.py): `const_vel` (constant velocity); `ridge` (ridge regression
 on the agent's own observed history, in its own frame, fitted on the file's train split with
 the regularisation chosen by cross-validation); `ridge_nearest`, `ridge_labelled` (oracle) and
-`ridge_random` add one other agent's history: the nearest, the labelled one, a random one.
+`ridge_random` add one other agent's history: the nearest, the labelled one, a random one;
+`ridge_labelled_relation` is `ridge_labelled` with one regression per relation to the labelled
+agent (ahead or behind it) instead of one per role.
 
 Predicts every scene of the split (default test) from its observed steps, feeding back the mean
 of each predicted Gaussian, and reports ADE/FDE [m] per case and overall for the main agents

@@ -5,7 +5,9 @@
 
 With --interaction-gain, also the interaction gain of the labelled cars (predictor.interaction):
 the test ADE of ridge regressions fitted on the train split on the attending car's own history,
-plus the labelled car's, plus a random car's, per case and role.
+plus the labelled car's, plus a random car's, per case and role; --gain-groups relation fits
+the attending cars' regressions per relation to the labelled car (ahead or behind it) instead
+of per role.
 
 Exit status: 0 valid; 1 the file exists but is not a valid dataset; 2 usage error / missing file.
 """
@@ -13,6 +15,7 @@ Exit status: 0 valid; 1 the file exists but is not a valid dataset; 2 usage erro
 from __future__ import annotations
 
 from pipeline.cli import ArgumentParser, fail, require_file, run_main
+from predictor.baselines import GROUPINGS
 from predictor.format import FormatError, read_meta, summarize
 from predictor.interaction import format_gain_table, interaction_gain
 
@@ -25,6 +28,13 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="also fit ridge baselines and report how much the labelled car explains",
     )
+    parser.add_argument(
+        "--gain-groups",
+        choices=GROUPINGS,
+        default="role",
+        help="with --interaction-gain: one ridge regression per role (default), or for the "
+        "attending cars one per relation to the labelled car (ahead or behind it)",
+    )
     args = parser.parse_args(argv)
     path = require_file(args.file)
     try:
@@ -35,7 +45,7 @@ def main(argv: list[str] | None = None) -> None:
     print(f"OK: {path} is a valid schema v{version} dataset")
     if args.interaction_gain:
         try:
-            rows = interaction_gain(path)
+            rows = interaction_gain(path, grouping=args.gain_groups)
         except ValueError as err:
             fail(str(err))
         print("\ninteraction gain (ridge test ADE of the attending agents, fitted on train):")
