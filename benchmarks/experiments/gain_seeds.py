@@ -1,0 +1,85 @@
+"""Experiment (issue 11): the interaction gain at the paper's size over many dataset seeds.
+
+Usage: python benchmarks/experiments/gain_seeds.py [--seeds 10] [--num-major 50] [--num-minor 15]
+
+For each v1 scenario and dataset seed 0 .. seeds-1, generates a file of the given size (100
+test trajectories per case) in a temporary folder and measures `predictor.interaction`'s gain
+with one ridge regression per role and per relation to the labelled car. Prints, per scenario,
+grouping and case, the gain and control over the seeds' rows (minimum, median, maximum) and
+pooled (ADE sums over all rows). Not run by `make bench`; docs/scenarios.md has the figures.
+The last line of stdout is one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.generation import GenerateConfig, generate_dataset
+from predictor.baselines import GROUPINGS
+from predictor.interaction import GainRow, interaction_gain
+
+SCENARIOS = ("double_merge_v1", "halting_car_v1")
+
+
+def summary(rows: list[GainRow]) -> dict:
+    """Gain and control of rows measured on separate files: spread and pooled."""
+    gains = np.array([row.gain for row in rows])
+    controls = np.array([row.control for row in rows])
+    own = sum(row.own * row.agents for row in rows)
+    return {
+        "rows": len(rows),
+        "gain_min": float(gains.min()),
+        "gain_median": float(np.median(gains)),
+        "gain_max": float(gains.max()),
+        "control_min": float(controls.min()),
+        "control_median": float(np.median(controls)),
+        "control_max": float(controls.max()),
+        "pooled_gain": 1.0 - sum(row.labelled * row.agents for row in rows) / own,
+        "pooled_control": sum(row.random * row.agents for row in rows) / own - 1.0,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=10, help="dataset seeds 0 .. N-1")
+    parser.add_argument("--num-major", type=int, default=50, help="train + val, major case")
+    parser.add_argument("--num-minor", type=int, default=15, help="train + val, minor case")
+    args = parser.parse_args()
+    rows: dict[tuple[str, str, str], list[GainRow]] = defaultdict(list)
+    with tempfile.TemporaryDirectory() as folder:
+        for scenario in SCENARIOS:
+            for seed in range(args.seeds):
+                config = GenerateConfig.for_scenario(
+                    scenario,
+                    num_major=args.num_major,
+                    num_minor=args.num_minor,
+                    num_test=100,
+                    seed=seed,
+                )
+                path = Path(folder) / f"{scenario}_{seed}.h5"
+                generate_dataset(config, path, workers=1, progress=False)
+                for grouping in GROUPINGS:
+                    for row in interaction_gain(path, grouping=grouping):
+                        rows[(scenario, grouping, row.case)].append(row)
+    results = []
+    for (scenario, grouping, case), found in rows.items():
+        figures = summary(found)
+        results.append({"scenario": scenario, "grouping": grouping, "case": case, **figures})
+        print(
+            f"{scenario:<16}{grouping:<9}{case:<6} rows {figures['rows']:>3}  gain "
+            f"{figures['gain_min']:>5.0%} / {figures['gain_median']:>4.0%} / "
+            f"{figures['gain_max']:>4.0%} (pooled {figures['pooled_gain']:.0%})  control "
+            f"{figures['control_min']:>+6.1%} / {figures['control_median']:>+5.1%} / "
+            f"{figures['control_max']:>+6.1%} (pooled {figures['pooled_control']:+.1%})"
+        )
+    print(json.dumps({"seeds": args.seeds, "results": results}))
+
+
+if __name__ == "__main__":
+    main()
