@@ -209,6 +209,29 @@ def test_results_table_with_attention_columns():
     assert len(lines) == 4  # nonsmooth was not run
 
 
+def test_bar_table_against_the_better_oracle_ridge_and_constant_velocity():
+    """Ours (means: major 2.0, minor 3.0 m; all agents a tenth of that) against the better
+    of the two oracle ridges per case and constant velocity's all-agent ADE (0.9 m)."""
+    oracles = [  # variant, major ADE, minor ADE
+        ("ridge_labelled", 2.5, 3.5),
+        ("ridge_labelled_relation", 1.5, 4.0),
+    ]
+    runs = hand_runs() + [
+        RunRecord.from_eval(
+            "hc_go", v, 0, fake_eval({"major": a, "minor": m}, {"major": a, "minor": m})
+        )
+        for v, a, m in oracles
+    ]
+    lines = markdown.bar_table(statistics.analyse(runs), ["hc_go", "dm_r0.3"]).splitlines()
+    assert len(lines) == 4  # header, rule, two cases of hc_go (dm_r0.3 was not run)
+    major = "| `hc_go` | major | 2.000 | 1.500 (Ridge+label per relation (oracle)) | not met |"
+    assert lines[2] == major + " 0.200 | 0.900 | met |"
+    minor = "| `hc_go` | minor | 3.000 | 3.500 (Ridge+label (oracle)) | met |"
+    assert lines[3] == minor + " 0.300 | 0.900 | met |"
+    assert markdown.bar_verdict(1.0, None) == "n/a" and markdown.bar_verdict(1.0, 1.0) == "not met"
+    assert markdown.bar_table(statistics.analyse(runs), ["dm_r0.3"]).startswith("_Needs Ours")
+
+
 def test_pvalue_table_gives_p_and_difference():
     results = statistics.analyse(hand_runs())
     row = markdown.pvalue_table(results, "hc_go").splitlines()[2]

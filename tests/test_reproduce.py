@@ -26,8 +26,9 @@ from predictor.evaluation import read_checkpoint
 reproduce = load_tool("reproduce.py")
 
 SETTINGS = ("dm_r0.3", "dm_r0.8", "dm_3+10", "dm_15+30", "dm_30+100", "hc_stop", "hc_go")
-VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct", "const_vel", "ridge")
-BASELINE_VARIANTS = ("const_vel", "ridge")  # evaluated once, not trained per seed
+BASELINE_VARIANTS = ("const_vel", "ridge", "ridge_labelled", "ridge_labelled_relation")
+VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct", *BASELINE_VARIANTS)
+# the baselines are evaluated once, not trained per seed
 NOTES = "The lead's notes.\n\n- verbatim *markdown* line\n"
 REDONE = ("nonsmooth", 1)  # this run's eval.json is deleted before the second run
 
@@ -98,6 +99,7 @@ def test_quick_run_writes_markdown_with_tables(quick):
         "## How this was produced",
         "## Settings and datasets",
         "## Paper claims",
+        "## The bar: simple baselines",
         "## Training-set size study",
         "## Trajectories and attention",
         "## Sample trajectories",
@@ -109,6 +111,10 @@ def test_quick_run_writes_markdown_with_tables(quick):
         assert f"### `{setting}`" in text
         assert sum(line.startswith(f"| `{setting}` | Ours") for line in text.splitlines()) == 4
     assert text.count("| Ours | ") == 2 * len(SETTINGS)  # main-car and all-agent tables
+    for case in ("major", "minor"):  # the bar: Ours against the oracle ridges, each case
+        assert sum(
+            line.startswith(f"| `{s}` | {case} | ") for s in SETTINGS for line in text.splitlines()
+        ) == len(SETTINGS)
     assert text.count("| Ours vs S-Attn | ") == len(SETTINGS)
     assert "cores" in text and "torch" in text and "--quick" in text
     assert "15/30 = 0.5" in text
@@ -185,7 +191,8 @@ def test_results_json_aggregates_match_the_runs(quick):
 
 def test_second_run_reuses_the_cache(quick):
     second = quick["second"]
-    assert "0 trained, 1 resumed, 59 reused" in second.stdout
+    runs = len(quick["before"])  # every run of the first invocation has its eval.json
+    assert f"{runs} runs (0 trained, 1 resumed, {runs - 1} reused" in second.stdout
     assert "0 datasets generated, 5 reused" in second.stdout
     after = quick["after"]
     assert set(after) == set(quick["before"])
@@ -374,7 +381,9 @@ def test_jobs_cover_every_variant_and_seed(tmp_path):
     assert re.fullmatch(r"halting_car_v1_go-major_15\+50_test50_seed0_[0-9a-f]{8}\.h5", data.name)
     assert all(j.data_path == jobs[0].data_path for j in jobs)
     assert re.fullmatch(r"seed0_ep7_[0-9a-f]{8}", Path(jobs[0].run_dir).name)
-    assert Path(jobs[0].run_dir).parent.name == "ours" and jobs[-1].run_dir.endswith("ridge")
+    assert Path(jobs[0].run_dir).parent.name == "ours" and jobs[-1].run_dir.endswith(
+        "ridge_labelled_relation"
+    )
     names = {Path(j.run_dir).name for j in jobs if j.variant == "s_attn"}
     assert len(names) == 3
 

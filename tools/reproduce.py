@@ -15,8 +15,9 @@ Protocol (paper, Sec. V; pipeline/reproduction.py): for every setting one datase
 with dataset seed 0 (so all variants and seeds see the same trajectories); each trained variant
 (`ours`, `s_attn`, `nonsmooth`, `average`, `correct`) is trained with training seeds 0..k-1
 (`--seeds k`, 10 in the paper) for `--epochs` (200) and evaluated from its best.pt (lowest
-validation ADE of the main agents) on the test split; `const_vel` is evaluated once per setting
-(deterministic).
+validation ADE of the main agents) on the test split; the baselines (`const_vel`, `ridge` and
+the oracle ridges `ridge_labelled` and `ridge_labelled_relation`, the bar the report checks Ours
+against) are evaluated once per setting (deterministic).
 
 | setting     | scenario     | major case | minor + major (train + val) |
 |-------------|--------------|------------|-----------------------------|

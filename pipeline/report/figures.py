@@ -32,6 +32,8 @@ COLORS = {
     "correct": "#d62728",
     "const_vel": "#7f7f7f",
     "ridge": "#8c564b",
+    "ridge_labelled": "#bcbd22",
+    "ridge_labelled_relation": "#17becf",
 }
 
 

@@ -15,6 +15,7 @@ from pipeline.report.records import (
     HEADLINE,
     LABELS,
     METRICS,
+    ORACLE_BASELINES,
     CaseNames,
     ClaimRow,
     Group,
@@ -52,6 +53,12 @@ CLAIM_RULES = (
     "smallest > largest)."
 )
 HEADLINE_MEASURES = tuple(Measure(m, c) for c in CASES for m in METRICS)
+BAR_RULES = (
+    "The bar a trained model must clear (one that loses to simple baselines has a bug, not a "
+    "result): Ours' mean main-car ADE below the better of the two oracle ridges (the labelled "
+    "car's history, one regression per role or per relation to it; `predictor.baselines`), and "
+    "its mean all-agent ADE below constant velocity's, in every case of every setting."
+)
 
 
 def fmt(summary: Summary, digits: int = 3) -> str:
@@ -115,6 +122,54 @@ def pvalue_table(results: Results, setting: str) -> str:
     header = ["Welch t-test, p (Δ = Ours − other)"] + [
         f"{m.case} {m.quantity.upper()}" for m in HEADLINE_MEASURES
     ]
+    return table(header, rows)
+
+
+def bar_verdict(model: float | None, baseline: float | None) -> str:
+    """ "met" where the model's mean is below the baseline's, "not met" otherwise, "n/a" where
+    either is missing."""
+    if model is None or baseline is None:
+        return "n/a"
+    return "met" if model < baseline else "not met"
+
+
+def bar_table(results: Results, settings: Sequence[str]) -> str:
+    """Per setting and case: Ours against the better oracle ridge (main cars) and against
+    constant velocity (all agents), as `BAR_RULES` says."""
+    rows = []
+    for setting in settings:
+        ours = results.summary(setting, "ours")
+        if ours is None:
+            continue
+        const_vel = results.summary(setting, "const_vel")
+        for case in CASES:
+            main = ours[Measure("ade", case)].mean
+            oracles = [
+                (summary[Measure("ade", case)].mean, variant)
+                for variant in ORACLE_BASELINES
+                if (summary := results.summary(setting, variant)) is not None
+                and summary[Measure("ade", case)].mean is not None
+            ]
+            best, best_name = min(oracles, default=(None, None))
+            everyone = Measure("ade", case, "all_agents")
+            all_agents = ours[everyone].mean
+            constant = None if const_vel is None else const_vel[everyone].mean
+            rows.append(
+                [
+                    f"`{setting}`",
+                    case,
+                    "n/a" if main is None else f"{main:.3f}",
+                    "n/a" if best is None else f"{best:.3f} ({LABELS[best_name]})",
+                    bar_verdict(main, best),
+                    "n/a" if all_agents is None else f"{all_agents:.3f}",
+                    "n/a" if constant is None else f"{constant:.3f}",
+                    bar_verdict(all_agents, constant),
+                ]
+            )
+    if not rows:
+        return "_Needs Ours and the baselines of at least one setting._"
+    header = ["setting", "case", "Ours main ADE", "best oracle ridge main ADE", "main cars"]
+    header += ["Ours all-agent ADE", "Const-Vel all-agent ADE", "all agents"]
     return table(header, rows)
 
 
@@ -217,7 +272,8 @@ def how_produced(report: Report) -> str:
             "(predictor/config.py `PRESETS`); "
             f"epochs: {protocol.epochs}; "
             f"seeds per trained variant: {protocol.seeds} ({seeds}); "
-            "baselines (`const_vel`, `ridge`) once per setting (deterministic)",
+            f"baselines ({', '.join(f'`{b}`' for b in BASELINES)}) once per setting "
+            "(deterministic)",
             f"- Runs: {counts.runs} ({counts.trained} trained now, {counts.resumed} "
             f"resumed, {counts.reused} reused from the cache or the results store "
             f"({counts.reused_from_store} from the store), {counts.failed} failed"
@@ -272,6 +328,13 @@ def render(report: Report, notes: str | None, notes_name: str) -> str:
     parts.append("\n## Results (main cars: the two interacting cars)\n")
     for setting in protocol.settings:
         parts += setting_section(report, setting)
+    settings = [setting.name for setting in protocol.settings]
+    parts += [
+        "\n## The bar: simple baselines\n",
+        BAR_RULES,
+        "",
+        bar_table(report.results, settings),
+    ]
     parts += ["\n## Training-set size study (Double Merge, Fig. 4)\n", size_section(report)]
     parts += ["\n## Paper claims\n", CLAIM_RULES, "", claims_table(report.claims)]
     parts.append("\n## Trajectories and attention (Fig. 6)\n")

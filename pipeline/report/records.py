@@ -22,7 +22,11 @@ METRICS: tuple[Quantity, ...] = ("ade", "fde")
 GROUPS: tuple[Group, ...] = ("main_agents", "all_agents")
 HEADLINE: Group = "main_agents"  # the two interacting cars: the group the claims are about
 ATTENTION: tuple[Quantity, ...] = ("attention_accuracy", "attention_weight")
-BASELINES = ("const_vel", "ridge")  # untrained predictors: evaluated once per setting
+# untrained predictors, evaluated once per setting: constant velocity, ridge on the car's own
+# history, and the two oracle ridges with the labelled car's history (per role, and per
+# relation to it: predictor.baselines), the bar a trained model must clear
+BASELINES = ("const_vel", "ridge", "ridge_labelled", "ridge_labelled_relation")
+ORACLE_BASELINES = ("ridge_labelled", "ridge_labelled_relation")
 LABELS = {  # how tables and figures name the variants
     "ours": "Ours",
     "s_attn": "S-Attn",
@@ -31,6 +35,8 @@ LABELS = {  # how tables and figures name the variants
     "correct": "Ours-Correct",
     "const_vel": "Const-Vel",
     "ridge": "Ridge",
+    "ridge_labelled": "Ridge+label (oracle)",
+    "ridge_labelled_relation": "Ridge+label per relation (oracle)",
 }
 
 
