@@ -274,12 +274,7 @@ class RidgeBaseline:
         """(n, N, F) features, (n, N) usable mask (whole history present), agent frames."""
         t0, history = self.num_observed - 1, self.history
         window = slice(t0 - history, t0 + 1)  # history + 1 positions -> history velocities
-        positions = states[..., :2].astype(np.float64)
-        if states.shape[-1] > 2:
-            heading = states[..., 2].astype(np.float64)
-        else:
-            heading = displacement_heading(positions, t0)
-        frames = _frames(positions, heading, t0)
+        positions, frames = frames_at(states, t0)
         track = positions[:, window].transpose(0, 2, 1, 3)  # (n, N, H+1, 2) world
         present = valid[:, window].all(axis=1)  # (n, N)
         own = frames.to_local(track)  # (n, N, H+1, 2)
@@ -349,6 +344,17 @@ class RidgeBaseline:
         return offset.reshape(offset.shape[0], offset.shape[1], -1)
 
 
+def frames_at(states: np.ndarray, t0: int) -> tuple[np.ndarray, _Frames]:
+    """Positions (n, T, N, 2) float64 and each agent's frame at step t0: origin its position,
+    x axis its heading (the states' third channel where given, else its last displacement)."""
+    positions = states[..., :2].astype(np.float64)
+    if states.shape[-1] > 2:
+        heading = states[..., 2].astype(np.float64)
+    else:
+        heading = displacement_heading(positions, t0)
+    return positions, _frames(positions, heading, t0)
+
+
 def relation_groups(
     states: np.ndarray, attention: np.ndarray, roles: np.ndarray, num_observed: int
 ) -> np.ndarray:
@@ -357,12 +363,7 @@ def relation_groups(
     observed step (positive x in its frame, as the baseline's features), RELATION_BEHIND if
     not; every other agent keeps its role. states as `RidgeBaseline.fit` reads them."""
     t0 = num_observed - 1
-    positions = states[..., :2].astype(np.float64)
-    if states.shape[-1] > 2:
-        heading = states[..., 2].astype(np.float64)
-    else:
-        heading = displacement_heading(positions, t0)
-    frames = _frames(positions, heading, t0)
+    positions, frames = frames_at(states, t0)
     labels = scene_labels(attention)  # (n, N)
     labelled = labels >= 0
     scenes = np.arange(len(labels))[:, None]
