@@ -158,6 +158,20 @@ class ModelConfig:
     # of the main cars 1.369 m with one map per colour, 0.822 m per colour and relation. Off:
     # with learned attention it was worse (docs/PREDICTOR.md). Needs attended_refit.
     highway_relation: bool = False
+    # A learnt bias per pair of roles (attending, attended) added to the learned attention's
+    # scores: "this kind of agent attends to that kind" is one parameter whose gradient sums
+    # over every such pair in the data, instead of a pattern the edge LSTM's states must carry
+    # (Double Merge v1, with highway_role_groups "0,0,1": attention accuracy 0.83, weight 0.71
+    # on the other main car; docs/PREDICTOR.md). Needs num_roles; ignored by fixed attention.
+    # Off: measured on few seeds.
+    role_attention_bias: bool = False
+    # Which roles share the highway's maps: comma-separated group per role ("0,0,1": the first
+    # two roles pool their maps); "" gives each role its own. Roles that drive alike but swap
+    # places between cases (Double Merge's colours: the rear car in one case, the front car in
+    # the other) fitted per role see each place in one case only; pooled, each relation's map
+    # sees both (ridge with the labelled car per relation: 1.369 m per colour, 0.513 m pooled).
+    # Needs num_roles, one group per role.
+    highway_role_groups: str = ""
     # --- the neighbour graph (predictor.graph; fixed per window, edges only between agents
     # that are present; the edge RNN and the attention cost O(edges)) ---
     # "all": every other agent (the paper's complete graph, N(N-1) edges); "radius": the agents
@@ -202,6 +216,19 @@ class ModelConfig:
             raise ValueError("ModelConfig.attended_refit needs highway_attended")
         if self.highway_relation and not self.attended_refit:
             raise ValueError("ModelConfig.highway_relation needs attended_refit")
+        if self.highway_role_groups:
+            parts = self.highway_role_groups.split(",")
+            if not all(p.strip().isdigit() for p in parts):
+                raise ValueError(
+                    "ModelConfig.highway_role_groups must be comma-separated group numbers, "
+                    f"got {self.highway_role_groups!r}"
+                )
+            groups = sorted({int(p) for p in parts})
+            if groups != list(range(len(groups))):
+                raise ValueError(
+                    "ModelConfig.highway_role_groups must number its groups 0, 1, ... without "
+                    f"gaps, got {self.highway_role_groups!r}"
+                )
         if self.highway_steps and self.rollout_prior != "anchored":
             raise ValueError("ModelConfig.highway_steps needs rollout_prior='anchored'")
         if not self.log_std_gain > 0:
@@ -499,6 +526,8 @@ ADDED_MODEL_FIELDS: dict[str, Any] = {
     "highway_attended": False,
     "attended_refit": False,
     "highway_relation": False,
+    "role_attention_bias": False,
+    "highway_role_groups": "",
     "neighbours": "all",
     "neighbour_radius_m": 50.0,
     "neighbour_k": 16,

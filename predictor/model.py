@@ -116,6 +116,14 @@ class SmoothAttentionPredictor(nn.Module):
         super().__init__()
         if config.num_roles < 0:
             raise ValueError("num_roles=-1 (from the data) must be resolved first (resolve_roles)")
+        if config.role_attention_bias and config.num_roles == 0:
+            raise ValueError("ModelConfig.role_attention_bias needs agent roles (num_roles)")
+        groups = config.highway_role_groups
+        if groups and len(groups.split(",")) != config.num_roles:
+            raise ValueError(
+                f"ModelConfig.highway_role_groups names {len(groups.split(','))} roles' groups; "
+                f"the model has {config.num_roles} roles"
+            )
         self.config = config
         emb, hid = config.embed_dim, config.edge_hidden
         # one-hot role inputs of F_embed and F_self
@@ -155,6 +163,9 @@ class SmoothAttentionPredictor(nn.Module):
         self.g_interact = nn.LSTM(emb, hid)
         learned = config.attention_mode == "learned"
         self.f_attn = nn.Linear(hid, config.attn_dim) if learned else None
+        self.role_pair = None
+        if config.role_attention_bias and learned and config.num_roles > 0:
+            self.role_pair = nn.Parameter(torch.zeros(config.num_roles, config.num_roles))
         self.g_pred = nn.LSTM(emb + 2 * hid, config.node_hidden)
         if config.detach_covariance:  # separate heads: offset (2), Cholesky raw (3)
             self.f_pred = nn.Linear(config.node_hidden, 2)
@@ -173,7 +184,26 @@ class SmoothAttentionPredictor(nn.Module):
     @property
     def num_maps(self) -> int:
         """Highway maps: one per role (one without roles), twice that with highway_relation."""
-        return max(self.config.num_roles, 1) * (2 if self.config.highway_relation else 1)
+        return self.num_groups * (2 if self.config.highway_relation else 1)
+
+    @property
+    def num_groups(self) -> int:
+        """Role groups sharing highway maps (`ModelConfig.highway_role_groups`)."""
+        if not self.config.highway_role_groups:
+            return max(self.config.num_roles, 1)
+        return max(int(g) for g in self.config.highway_role_groups.split(",")) + 1
+
+    def _groups_of(self, roles: Tensor | None, like: Tensor) -> Tensor:
+        """Each agent's highway map group (B, N) from its role (B, N) (group 0 for every agent
+        of a model without roles; `like` gives the shape and device)."""
+        if roles is None:
+            return torch.zeros(like.shape, dtype=torch.long, device=like.device)
+        if not self.config.highway_role_groups:
+            return roles
+        table = torch.tensor(
+            [int(g) for g in self.config.highway_role_groups.split(",")], device=roles.device
+        )
+        return table[roles]
 
     def parameter_groups(self) -> list[list[nn.Parameter]]:
         """Parameters whose gradients come from separate losses (with `detach_covariance`: the
@@ -403,9 +433,7 @@ class SmoothAttentionPredictor(nn.Module):
         features, usable = history_features(
             steps.pos, steps.present, steps.num_observed, rotation, self.config.highway_steps
         )
-        slots = steps.role_index
-        if slots is None:
-            slots = torch.zeros(usable.shape, dtype=torch.long, device=usable.device)
+        slots = self._groups_of(steps.role_index, usable)
         edges = mask = None
         if self.config.highway_attended:
             edges, mask = self._neighbour_features(steps)
@@ -510,9 +538,7 @@ class SmoothAttentionPredictor(nn.Module):
             steps.pos, steps.present, t_obs, rotation, self.config.highway_steps
         )
         edges, mask = self._neighbour_features(steps)
-        slots = steps.role_index
-        if slots is None:
-            slots = torch.zeros(usable.shape, dtype=torch.long, device=usable.device)
+        slots = self._groups_of(steps.role_index, usable)
         if self.config.highway_relation:
             slots = relation_slots(slots, theta, edges, mask)
         standard = torch.where(
@@ -564,7 +590,7 @@ class SmoothAttentionPredictor(nn.Module):
         o_edge, h_edge = self.g_interact(x_edge, state.edge)  # (S, E, H) over the packed edges
         o_self, h_self = self.g_self(x_self.flatten(1, 2), state.self_loop)  # (S, B*N, H)
         together = graph.edge_present(present)  # (S, E) both ends present at the step
-        theta = self._attention(o_self, o_edge, together, labels, graph)  # (S, E)
+        theta = self._attention(o_self, o_edge, together, labels, graph, steps.role_index)
         attended = graph.sum_by_tail(theta.unsqueeze(-1) * o_edge)  # (S, B*N, H)
         attended = attended.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
         o_self = o_self.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
@@ -695,7 +721,7 @@ class SmoothAttentionPredictor(nn.Module):
             if self.config.num_roles > 0:
                 raise ValueError("the model reads agent roles; fit_normalisation needs them")
             roles = torch.zeros(usable.shape, dtype=torch.long)
-        slots = roles.long()
+        slots = self._groups_of(roles.long(), usable)
         if self.config.highway_attended:  # standardisation over the usable edges
             edges, mask = self._neighbour_features(steps)
             if self.config.highway_relation:  # before any attention: the uniform one
@@ -744,10 +770,11 @@ class SmoothAttentionPredictor(nn.Module):
         together: Tensor,
         labels: Tensor | None,
         graph: Graph,
+        roles: Tensor | None = None,
     ) -> Tensor:
         """theta (S, E) of each agent over its graph neighbours present at the step (`together`
         (S, E): both ends present); an agent without one gets zeros. o_self (S, B*N, H),
-        o_edge (S, E, H), labels (S, B, N) (oracle)."""
+        o_edge (S, E, H), labels (S, B, N) (oracle), roles (B, N) (`role_attention_bias`)."""
         mode = self.config.attention_mode
         if mode == "learned":
             # <F_attn(o_ii), W o_ij + b> = <W^T F_attn(o_ii), o_ij> + <F_attn(o_ii), b>; the
@@ -755,6 +782,10 @@ class SmoothAttentionPredictor(nn.Module):
             # need not be applied to the edge outputs (same theta, far cheaper).
             query = self.f_attn(o_self) @ self.f_attn.weight  # (S, B*N, H)
             scores = (o_edge * query.index_select(1, graph.tail)).sum(-1)  # (S, E)
+            if self.role_pair is not None and roles is not None:
+                flat = roles.flatten()  # (B*N,)
+                pair = self.role_pair[flat[graph.tail], flat[graph.head]]  # (E,)
+                scores = scores + pair
             return segment_softmax(scores * self.config.attention_gain, together, graph)
         uniform = segment_uniform(together, graph, o_edge.dtype)  # (S, E)
         if mode == "uniform":

@@ -450,3 +450,64 @@ def test_relation_slots_follow_the_attention_weighted_position():
     assert uniform.tolist() == [[[0.5, 0.5], [0.5, 0.5], [0.0, 1.0]]]
     # uniform: agent 0 sees 2 > 0 ahead
     assert relation_slots(roles, uniform, features, mask).tolist() == [[0, 3, 2]]
+
+
+def test_role_groups_pool_the_maps_of_roles_that_behave_alike():
+    """Two cars of *different* roles in the mirrored pair: pooled in one group their maps are
+    fitted on both cars' scenes, and identical; unpooled each role has its own."""
+    num_observed, steps = 8, 14
+    positions, valid, labels, _ = mirrored_pair_scenes(40, steps, num_observed, seed=5)
+    roles = torch.tensor([0, 1, 2]).expand(40, 3)
+    maps = {}
+    for groups in ("", "0,0,1"):
+        config = ModelConfig(
+            **REFIT,
+            attention_mode="oracle",
+            num_roles=3,
+            highway_attended=True,
+            attended_refit=True,
+            highway_relation=True,
+            highway_role_groups=groups,
+        )
+        model = SmoothAttentionPredictor(config)
+        assert model.num_maps == (6 if not groups else 4)
+        model.fit_normalisation(positions, valid, num_observed, roles)
+        model.refit_attended(positions, valid, num_observed, labels, roles)
+        maps[groups] = model.highway_weight.clone()
+        out = model.predict(positions, valid, num_observed, labels, roles=roles).rollout.mean
+        truth = positions[:, num_observed:, :2]
+        assert (out[:, :, :2] - truth).norm(dim=-1).max() < 0.05  # each relation read exactly
+    assert maps["0,0,1"].shape[0] == 4 and maps[""].shape[0] == 6
+    with pytest.raises(ValueError, match="2 roles' groups; the model has 3 roles"):
+        SmoothAttentionPredictor(ModelConfig(**REFIT, num_roles=3, highway_role_groups="0,1"))
+    for bad in ("0,2", "a,b", "0,-1"):
+        with pytest.raises(ValueError, match="highway_role_groups must"):
+            ModelConfig(**REFIT, num_roles=2, highway_role_groups=bad)
+
+
+def test_role_attention_bias_moves_the_attention_to_a_role():
+    """A large learnt bias for (role 0 attends role 1) puts role 0's attention on the role-1
+    agent; zero bias leaves the scores as they were."""
+    positions, valid, labels, roles = mirrored_pair_scenes(4, 10, 8, seed=6)
+    roles = torch.tensor([0, 1, 2]).expand(4, 3)
+    config = ModelConfig(**REFIT, num_roles=3, role_attention_bias=True)
+    torch.manual_seed(0)
+    model = SmoothAttentionPredictor(config)
+    assert model.role_pair.shape == (3, 3) and model.role_pair.abs().sum() == 0
+    plain = ModelConfig(**REFIT, num_roles=3)
+    torch.manual_seed(0)
+    without = SmoothAttentionPredictor(plain)
+    without.load_state_dict(
+        {k: v for k, v in model.state_dict().items() if k != "role_pair"}, strict=True
+    )
+    before = model(positions, valid, 8, sample=False, roles=roles).attention
+    torch.testing.assert_close(
+        before, without(positions, valid, 8, sample=False, roles=roles).attention
+    )
+    with torch.no_grad():
+        model.role_pair[0, 1] = 20.0
+    after = model(positions, valid, 8, sample=False, roles=roles).attention  # (B, T, N, N-1)
+    assert after[:, :, 0, 0].min() > 0.99  # agent 0 (role 0) attends agent 1 (its edge 0)
+    torch.testing.assert_close(after[:, :, 1:], before[:, :, 1:])  # the others unchanged
+    with pytest.raises(ValueError, match="role_attention_bias needs agent roles"):
+        SmoothAttentionPredictor(ModelConfig(**REFIT, role_attention_bias=True))

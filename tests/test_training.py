@@ -145,14 +145,22 @@ REFIT_AGENT = {
 }
 
 
-@pytest.mark.parametrize("refit", [False, True], ids=["paper", "agent_refit"])
+@pytest.mark.parametrize(
+    "refit",
+    [
+        None,
+        REFIT_AGENT,
+        {**REFIT_AGENT, "role_attention_bias": True, "highway_role_groups": "0,0,1"},
+    ],
+    ids=["paper", "agent_refit", "agent_role_bias_groups"],
+)
 def test_resume_after_interruption_equals_uninterrupted(
-    braking_file: Path, tmp_path: Path, refit: bool
+    braking_file: Path, tmp_path: Path, refit: dict | None
 ):
     model_cfg, train_cfg = tiny_configs(epochs=3)
     if refit:  # the highway refitted at every epoch start (ModelConfig.attended_refit)
         model_cfg, train_cfg = make_configs(
-            "ours", REFIT_AGENT, preset="agent", epochs=3, batch_size=3, seed=0, lr=3e-3
+            "ours", refit, preset="agent", epochs=3, batch_size=3, seed=0, lr=3e-3
         )
     train(braking_file, model_cfg, train_cfg, tmp_path / "full", progress=False)
 

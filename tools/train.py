@@ -61,6 +61,8 @@ MODEL_FLAGS = (
     "highway_attended",
     "attended_refit",
     "highway_relation",
+    "role_attention_bias",
+    "highway_role_groups",
     "neighbours",
     "neighbour_radius_m",
     "neighbour_k",
