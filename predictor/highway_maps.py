@@ -1,0 +1,221 @@
+"""The highway's maps inside the predictor: which map each agent reads, its rollout's velocity
+changes, and the closed-form fits (at normalisation, and `refit_attended` every epoch).
+
+`HighwayMaps` is a mixin of `SmoothAttentionPredictor` (predictor.model), which owns the
+buffers it reads (`highway_weight`, `attended_weight`, ... registered in its constructor) and
+the passes it calls (`_prepare`, `_block`); the arithmetic itself is in predictor.highway.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+from torch import Tensor
+
+from predictor.agent_frame import rotate
+from predictor.config import ModelConfig
+from predictor.highway import (
+    CROSS_FIT_FOLDS,
+    agent_maps,
+    attended_changes,
+    fit_cross_fitted,
+    fold_of,
+    future_offsets,
+    history_features,
+    neighbour_features,
+    relation_slots,
+    uniform_attention,
+    velocity_changes,
+)
+from predictor.outputs import edge_index
+
+if TYPE_CHECKING:  # annotations only: the model module imports this one
+    from predictor.model import _Steps
+
+MIN_STAT_STD = 1e-4  # floor of the fitted standard deviations (in metres)
+
+
+class HighwayMaps:
+    """The highway part of `SmoothAttentionPredictor` (see the module docstring)."""
+
+    config: ModelConfig
+
+    @property
+    def num_maps(self) -> int:
+        """Highway maps: one per role (one without roles), twice that with highway_relation."""
+        return self.num_groups * (2 if self.config.highway_relation else 1)
+
+    @property
+    def num_groups(self) -> int:
+        """Role groups sharing highway maps (`ModelConfig.highway_role_groups`)."""
+        if not self.config.highway_role_groups:
+            return max(self.config.num_roles, 1)
+        return max(int(g) for g in self.config.highway_role_groups.split(",")) + 1
+
+    def _groups_of(self, roles: Tensor | None, like: Tensor) -> Tensor:
+        """Each agent's highway map group (B, N) from its role (B, N) (group 0 for every agent
+        of a model without roles; `like` gives the shape and device)."""
+        if roles is None:
+            return torch.zeros(like.shape, dtype=torch.long, device=like.device)
+        if not self.config.highway_role_groups:
+            return roles
+        table = torch.tensor(
+            [int(g) for g in self.config.highway_role_groups.split(",")], device=roles.device
+        )
+        return table[roles]
+
+    def _highway(self, steps: _Steps, theta: Tensor) -> Tensor | None:
+        """The highway's velocity changes over the rollout (B, N, horizon, 2), world axes
+        (None without a highway); theta (B, N, N-1): the attention at the last observed step
+        (read by the attended highway)."""
+        if not self.config.highway_steps:
+            return None
+        rotation = steps.frame[1]
+        features, usable = history_features(
+            steps.pos, steps.present, steps.num_observed, rotation, self.config.highway_steps
+        )
+        slots = self._groups_of(steps.role_index, usable)
+        edges = mask = None
+        if self.config.highway_attended:
+            edges, mask = self._neighbour_features(steps)
+            if self.config.highway_relation:
+                slots = relation_slots(slots, theta, edges, mask)
+        weight, bias = agent_maps(
+            self.highway_weight,
+            self.highway_bias,
+            self.highway_fold_weight,
+            self.highway_fold_bias,
+            slots,
+            steps.scenes,
+        )  # (B, N, F, horizon, 2), (B, N, horizon, 2)
+        change = velocity_changes(features, usable, weight, bias)  # (B, N, horizon, 2)
+        if self.config.highway_attended:
+            change = change + self._attended(steps, theta, slots, edges, mask)
+        return rotate(change.permute(2, 0, 1, 3), rotation).permute(1, 2, 0, 3)
+
+    def _neighbour_features(self, steps: _Steps) -> tuple[Tensor, Tensor]:
+        """The attended highway's edge features (B, N, N-1, F) and their mask (B, N, N-1)."""
+        _, head = edge_index(steps.pos.shape[2], steps.pos.device)
+        return neighbour_features(
+            steps.pos,
+            steps.present,
+            steps.num_observed,
+            steps.frame[1],
+            self.config.highway_steps,
+            head,
+        )
+
+    def _attended(
+        self, steps: _Steps, theta: Tensor, slots: Tensor, features: Tensor, mask: Tensor
+    ) -> Tensor:
+        """The attended highway's velocity changes (B, N, horizon, 2), agent frame [m/step];
+        slots (B, N): each agent's map."""
+        if self.config.attended_refit and steps.scenes is not None:  # cross-fitted maps
+            fold = fold_of(steps.scenes, CROSS_FIT_FOLDS).unsqueeze(-1).expand_as(slots)
+            weight = self.attended_fold_weight[fold, slots]  # (B, N, F, horizon, 2)
+        else:
+            weight = self.attended_weight[slots]  # (B, N, F, horizon, 2)
+        change = attended_changes(
+            features, mask, theta, self.attended_mean, self.attended_std, weight
+        )
+        return change * self.anchor_std  # (B, N, horizon, 2)
+
+    @torch.no_grad()
+    def refit_attended(
+        self,
+        positions: Tensor,
+        valid: Tensor,
+        num_observed: int,
+        labels: Tensor | None = None,
+        roles: Tensor | None = None,
+        batch_size: int = 64,
+    ) -> None:
+        """Refit the highway's own and attended maps jointly in closed form
+        (`ModelConfig.attended_refit`) on the training scenes (B, T, N, .), in the order
+        `fit_normalisation` saw them (the cross-fitting folds follow the scene index), with the
+        attention the model gives now at the last observed step. labels (B, T, N) are needed
+        for oracle attention, roles (B, N) where the model reads roles."""
+        cfg = self.config
+        if not cfg.attended_refit:
+            raise ValueError("refit_attended needs ModelConfig.attended_refit")
+        if cfg.num_roles > 0 and roles is None:
+            raise ValueError("the model reads agent roles; refit_attended needs them")
+        parts: list[tuple[Tensor, ...]] = []
+        for first in range(0, positions.shape[0], batch_size):
+            sl = slice(first, first + batch_size)
+            steps = self._prepare(
+                positions[sl],
+                valid[sl],
+                num_observed,
+                None if labels is None else labels[sl],
+                None if roles is None else roles[sl],
+            )
+            theta = self._block(steps, 0, num_observed, None).attention[-1]  # (B, N, N-1)
+            parts.append(self._refit_samples(steps, theta))
+        own, attended, offsets, samples, slots = (torch.cat(column) for column in zip(*parts))
+        weight, bias, fold_weight, fold_bias = fit_cross_fitted(
+            torch.cat([own, attended], -1),
+            offsets,
+            samples,
+            slots,
+            self.num_maps,
+            cfg.highway_horizon,
+        )
+        split = own.shape[-1]
+        scale = self.anchor_std.view(1, 1, 1, 2)  # attended maps are in units of anchor_std
+        self.highway_weight.copy_(weight[:, :split])
+        self.highway_bias.copy_(bias)
+        self.highway_fold_weight.copy_(fold_weight[:, :, :split])
+        self.highway_fold_bias.copy_(fold_bias)
+        self.attended_weight.copy_(weight[:, split:] / scale)
+        self.attended_fold_weight.copy_(fold_weight[:, :, split:] / scale)
+
+    def _refit_samples(self, steps: _Steps, theta: Tensor) -> tuple[Tensor, ...]:
+        """Regression samples of `refit_attended` for one batch: own features (B, N, F_own),
+        attended features sum_j theta_ij z_ij (B, N, F_att), future offsets (B, N, T_pred, 2),
+        which agents to fit on (B, N) and each agent's map (B, N)."""
+        rotation, t_obs = steps.frame[1], steps.num_observed
+        own, usable = history_features(
+            steps.pos, steps.present, t_obs, rotation, self.config.highway_steps
+        )
+        edges, mask = self._neighbour_features(steps)
+        slots = self._groups_of(steps.role_index, usable)
+        if self.config.highway_relation:
+            slots = relation_slots(slots, theta, edges, mask)
+        standard = torch.where(
+            mask.unsqueeze(-1), (edges - self.attended_mean) / self.attended_std, 0.0
+        )
+        attended = (theta.unsqueeze(-1) * standard).sum(2)  # (B, N, F_att)
+        offsets, complete = future_offsets(steps.pos, steps.present, t_obs, rotation)
+        return own, attended, offsets, usable & complete, slots
+
+    def _fit_highway(self, steps: _Steps, roles: Tensor | None) -> None:
+        """Fit the highway (predictor.highway) on the agents present over the whole history
+        window and future: the map of all scenes, and one map without each cross-fitting fold
+        (scene b belongs to fold b mod CROSS_FIT_FOLDS); roles (B, N) pick the map (one map if
+        the model reads no roles)."""
+        rotation = steps.frame[1]
+        t_obs = steps.num_observed
+        features, usable = history_features(
+            steps.pos, steps.present, t_obs, rotation, self.config.highway_steps
+        )
+        offsets, complete = future_offsets(steps.pos, steps.present, t_obs, rotation)
+        if self.config.num_roles <= 0 or roles is None:
+            if self.config.num_roles > 0:
+                raise ValueError("the model reads agent roles; fit_normalisation needs them")
+            roles = torch.zeros(usable.shape, dtype=torch.long)
+        slots = self._groups_of(roles.long(), usable)
+        if self.config.highway_attended:  # standardisation over the usable edges
+            edges, mask = self._neighbour_features(steps)
+            if self.config.highway_relation:  # before any attention: the uniform one
+                slots = relation_slots(slots, uniform_attention(mask), edges, mask)
+            edges = edges[mask]  # (K, F)
+            if len(edges) >= 2:
+                self.attended_mean.copy_(edges.mean(0))
+                self.attended_std.copy_(edges.std(0).clamp(min=MIN_STAT_STD))
+        horizon = self.config.highway_horizon
+        maps = fit_cross_fitted(features, offsets, usable & complete, slots, self.num_maps, horizon)
+        buffers = ("highway_weight", "highway_bias", "highway_fold_weight", "highway_fold_bias")
+        for name, value in zip(buffers, maps):
+            getattr(self, name).copy_(value)
