@@ -163,7 +163,7 @@ class ModelConfig:
     # over every such pair in the data, instead of a pattern the edge LSTM's states must carry
     # (Double Merge v1, with highway_role_groups "0,0,1": attention accuracy 0.83, weight 0.71
     # on the other main car; docs/PREDICTOR.md). Needs num_roles; ignored by fixed attention.
-    # Off: measured on few seeds.
+    # Off: it finds the other main car in about half the seeds, and loses Halting Car's leader.
     role_attention_bias: bool = False
     # Which roles share the highway's maps: comma-separated group per role ("0,0,1": the first
     # two roles pool their maps); "" gives each role its own. Roles that drive alike but swap

@@ -81,7 +81,7 @@ def load_model(path: str | os.PathLike) -> tuple[SmoothAttentionPredictor, dict]
     try:
         config: ModelConfig = model_config_from_dict(checkpoint["model_config"])
         model = SmoothAttentionPredictor(config)
-        model.load_state_dict(checkpoint["model_state"])
+        model.load_state_dict(model.fill_unclamped_range(checkpoint["model_state"]))
     except (KeyError, TypeError, ValueError, RuntimeError) as err:
         raise CheckpointError(f"{path}: inconsistent checkpoint ({err})") from None
     model.eval()

@@ -19,6 +19,8 @@ from predictor.highway import (
     CROSS_FIT_FOLDS,
     agent_maps,
     attended_changes,
+    change_bounds,
+    clamp_changes,
     fit_cross_fitted,
     fold_of,
     future_offsets,
@@ -65,6 +67,16 @@ class HighwayMaps:
         )
         return table[roles]
 
+    def fill_unclamped_range(self, state: dict[str, Tensor]) -> dict[str, Tensor]:
+        """A state dict of this model with the highway's output range added where it lacks one
+        (checkpoints written before `change_bounds` existed): an unbounded range, so such a
+        model keeps the behaviour it was trained with."""
+        if not self.config.highway_steps or "highway_low" in state:
+            return state
+        shape = self.highway_low.shape
+        infinite = torch.full(shape, float("inf"))
+        return {**state, "highway_low": -infinite, "highway_high": infinite}
+
     def _highway(self, steps: _Steps, theta: Tensor) -> Tensor | None:
         """The highway's velocity changes over the rollout (B, N, horizon, 2), world axes
         (None without a highway); theta (B, N, N-1): the attention at the last observed step
@@ -92,6 +104,7 @@ class HighwayMaps:
         change = velocity_changes(features, usable, weight, bias)  # (B, N, horizon, 2)
         if self.config.highway_attended:
             change = change + self._attended(steps, theta, slots, edges, mask)
+        change = clamp_changes(change, self.highway_low[slots], self.highway_high[slots])
         return rotate(change.permute(2, 0, 1, 3), rotation).permute(1, 2, 0, 3)
 
     def _neighbour_features(self, steps: _Steps) -> tuple[Tensor, Tensor]:
@@ -170,6 +183,15 @@ class HighwayMaps:
         self.highway_fold_bias.copy_(fold_bias)
         self.attended_weight.copy_(weight[:, split:] / scale)
         self.attended_fold_weight.copy_(fold_weight[:, :, split:] / scale)
+        self._fit_bounds(offsets, samples, slots)
+
+    def _fit_bounds(self, offsets: Tensor, samples: Tensor, slots: Tensor) -> None:
+        """The maps' output ranges (`change_bounds`) from the fitted samples' targets."""
+        low, high = change_bounds(
+            offsets, samples, slots, self.num_maps, self.config.highway_horizon
+        )
+        self.highway_low.copy_(low)
+        self.highway_high.copy_(high)
 
     def _refit_samples(self, steps: _Steps, theta: Tensor) -> tuple[Tensor, ...]:
         """Regression samples of `refit_attended` for one batch: own features (B, N, F_own),
@@ -219,3 +241,4 @@ class HighwayMaps:
         buffers = ("highway_weight", "highway_bias", "highway_fold_weight", "highway_fold_bias")
         for name, value in zip(buffers, maps):
             getattr(self, name).copy_(value)
+        self._fit_bounds(offsets, usable & complete, slots)

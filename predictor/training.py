@@ -308,7 +308,7 @@ def build_state(
 
 def restore_state(state: RunState, checkpoint: dict) -> None:
     """Load model, optimizer, counters and RNG states from a `last.pt` dict."""
-    state.model.load_state_dict(checkpoint["model_state"])
+    state.model.load_state_dict(state.model.fill_unclamped_range(checkpoint["model_state"]))
     state.optimizer.load_state_dict(checkpoint["optimizer_state"])
     state.epoch = int(checkpoint["epoch"])
     state.best_score = checkpoint["best_score"]

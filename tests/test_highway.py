@@ -13,6 +13,7 @@ from predictor.config import ModelConfig, make_configs
 from predictor.highway import (
     CROSS_FIT_FOLDS,
     attended_changes,
+    change_bounds,
     fit_highway,
     future_offsets,
     history_features,
@@ -84,6 +85,61 @@ def test_a_role_with_one_training_scene_keeps_constant_velocity():
     )
     assert set(alphas) == {0}
     assert not weight[1].any() and not bias[1].any()
+
+
+def test_change_bounds_are_each_maps_target_range_with_zero_included():
+    # two agents of map 0 (one not a sample) and one of map 1; offsets over 3 predicted steps
+    offsets = torch.tensor(
+        [
+            [[1.0, 0.5], [3.0, 0.0], [4.0, -1.0]],  # changes (1, .5) (2, -.5) (1, -1)
+            [[-2.0, 1.0], [-3.0, 2.0], [-3.0, 3.0]],  # changes (-2, 1) (-1, 1) (0, 1)
+            [[9.0, 9.0], [0.0, 0.0], [9.0, 9.0]],  # not a sample
+            [[0.5, 0.5], [1.0, 1.0], [1.5, 1.5]],  # map 1: changes (.5, .5) each step
+        ]
+    ).unsqueeze(0)  # (B=1, N=4, T_pred=3, 2)
+    samples = torch.tensor([[True, True, False, True]])
+    maps = torch.tensor([[0, 0, 0, 1]])
+    low, high = change_bounds(offsets, samples, maps, num_maps=3, horizon=4)
+    assert low.shape == high.shape == (3, 4, 2)
+    expected_low = [[-2.0, 0.0], [-1.0, -0.5], [0.0, -1.0], [0.0, -1.0]]  # step 4 repeats 3
+    expected_high = [[1.0, 1.0], [2.0, 1.0], [1.0, 1.0], [1.0, 1.0]]
+    assert low[0].tolist() == expected_low and high[0].tolist() == expected_high
+    assert low[1].tolist() == [[0.0, 0.0]] * 4 and high[1].tolist() == [[0.5, 0.5]] * 4
+    assert not low[2].any() and not high[2].any()  # no samples: constant velocity only
+
+
+def test_the_highway_never_leaves_its_fitted_range_and_old_checkpoints_stay_unbounded():
+    num_observed, steps = 8, 20
+    train, valid = accelerating_scenes(batch=40, steps=steps, agents=3, seed=1)
+    config = ModelConfig(**SMALL, **ANCHORED, highway_steps=4, highway_horizon=12)
+    model = SmoothAttentionPredictor(config)
+    model.fit_normalisation(train, valid, num_observed)
+    # 100 times the training accelerations: far outside the range the map was fitted on
+    start, _ = accelerating_scenes(batch=5, steps=steps, agents=3, seed=2)
+    t = torch.arange(steps, dtype=torch.float32).view(1, -1, 1, 1)
+    extreme = start + 99.0 * (start[:, 2:3] - 2 * start[:, 1:2] + start[:, :1]) * t * t / 2
+    test_valid = torch.ones(5, steps, 3, dtype=torch.bool)
+    rollout = model.predict(extreme, test_valid, num_observed).rollout.mean  # (B, T_pred, N, 2)
+    # the untrained network adds nothing: each step's velocity change since T_obs-1 is the
+    # highway's, whose size the fitted range bounds (the frame's rotation keeps lengths)
+    path = torch.cat([extreme[:, num_observed - 2 : num_observed], rollout], 1)
+    velocity = path[:, 1:] - path[:, :-1]  # (B, T_pred + 1, N, 2)
+    change = (velocity[:, 1:] - velocity[:, :1]).norm(dim=-1)  # (B, T_pred, N)
+    largest = torch.maximum(-model.highway_low, model.highway_high)[0].norm(dim=-1)  # (12,)
+    limit = torch.cat([largest, largest[-1:].expand(steps - num_observed - 12)])
+    assert (change <= limit.view(1, -1, 1) + 1e-4).all()
+    assert largest.max() < 1.0  # [m/step]: the training scenes' changes are small
+    # a checkpoint without the range (written before it existed) loads unbounded
+    state = {
+        k: v for k, v in model.state_dict().items() if k not in ("highway_low", "highway_high")
+    }
+    old = SmoothAttentionPredictor(config)
+    old.load_state_dict(old.fill_unclamped_range(state))
+    assert old.highway_high.isinf().all() and (old.highway_low == -math.inf).all()
+    unbounded = old.predict(extreme, test_valid, num_observed).rollout.mean
+    path = torch.cat([extreme[:, num_observed - 2 : num_observed], unbounded], 1)
+    velocity = path[:, 1:] - path[:, :-1]
+    assert (velocity[:, 1:] - velocity[:, :1]).norm(dim=-1).max() > 10 * largest.max()
 
 
 def test_history_and_future_features_follow_the_kinematics():
@@ -223,6 +279,9 @@ def test_attended_highway_starts_as_the_plain_highway_and_reads_the_attention():
     torch.testing.assert_close(outputs[1], outputs[0])  # zero map: no change
     model = models[1]
     weight = torch.randn(model.attended_weight.shape, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():  # a random map leaves the fitted range; the range is tested apart
+        model.highway_low.fill_(-math.inf)
+        model.highway_high.fill_(math.inf)
 
     def first_step_shift() -> torch.Tensor:
         """What the map moves the first predicted position by (the network's part cancels)."""
