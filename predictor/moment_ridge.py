@@ -1,0 +1,99 @@
+"""Standardised ridge regression fitted from per-sample moments, alpha by grouped
+cross-validation.
+
+The attended highway's per-edge fit (`ModelConfig.attended_fit` "edges") regresses an agent's
+future on each of its edges in turn, weighted by the attention: rows x_ij = (own_i, z_ij) with
+weight theta_ij, the weights of an agent summing to one. Its normal equations need only each
+agent's attention-weighted mean E[x] and second moment E[x x^T] of its rows, so the fit runs on
+one sample per agent (N samples with F x F moments, instead of N (N-1) weighted rows), and the
+cross-validation's folds are sums of per-group statistics. With one row per sample
+(E[x x^T] = E[x] E[x]^T) it is scikit-learn's StandardScaler + Ridge (tested).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def fit_moment_ridge(
+    mean: np.ndarray,
+    moment: np.ndarray,
+    target: np.ndarray,
+    groups: np.ndarray,
+    alphas: tuple[float, ...],
+    folds: int,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Ridge on standardised features from each sample's weighted rows, given by their mean
+    (K, F) and second moment (K, F, F) (weights summing to one per sample), targets (K, D) and
+    groups (K,) (e.g. scenes, never split by a fold). Minimises sum_k E_k |y_k - x b - c|^2 +
+    alpha |s b|^2, s the features' standard deviations over all rows (population, 1 where
+    zero), as Ridge on StandardScaler's output does. Alpha is the one of `alphas` with the
+    smallest mean squared error of the held-out samples' predictions E_k[x] b + c, averaged
+    over min(folds, groups) folds of whole groups (scikit-learn's GroupKFold assignment).
+    Returns coef (F, D), intercept (D,) and that alpha."""
+    names, inverse = np.unique(groups, return_inverse=True)
+    if len(names) < 2:
+        raise ValueError(f"ridge cross-validation needs at least two groups, got {len(names)}")
+    stats = _group_statistics(mean, moment, target, inverse, len(names))
+    fold_of_group = _group_folds(np.bincount(inverse), min(folds, len(names)))
+    scores = np.zeros(len(alphas))
+    for fold in range(fold_of_group.max() + 1):
+        held = fold_of_group[inverse] == fold  # (K,)
+        train = tuple(s[fold_of_group != fold].sum(0) for s in stats)
+        for index, alpha in enumerate(alphas):
+            coef, intercept = _solve(*train, alpha)
+            error = mean[held] @ coef + intercept - target[held]
+            scores[index] += np.mean(error * error)
+    best = float(alphas[int(np.argmin(scores))])
+    coef, intercept = _solve(*(s.sum(0) for s in stats), best)
+    return coef, intercept, best
+
+
+def _group_statistics(
+    mean: np.ndarray, moment: np.ndarray, target: np.ndarray, group: np.ndarray, count: int
+) -> tuple[np.ndarray, ...]:
+    """Per group: samples (G,), sum of E[x] (G, F), of y (G, D), of E[x x^T] (G, F, F) and of
+    E[x] y^T (G, F, D)."""
+    samples = np.bincount(group, minlength=count).astype(np.float64)
+    sum_x = np.zeros((count, mean.shape[1]))
+    sum_y = np.zeros((count, target.shape[1]))
+    sum_xx = np.zeros((count, *moment.shape[1:]))
+    sum_xy = np.zeros((count, mean.shape[1], target.shape[1]))
+    np.add.at(sum_x, group, mean)
+    np.add.at(sum_y, group, target)
+    np.add.at(sum_xx, group, moment)
+    np.add.at(sum_xy, group, mean[:, :, None] * target[:, None, :])
+    return samples, sum_x, sum_y, sum_xx, sum_xy
+
+
+def _group_folds(sizes: np.ndarray, folds: int) -> np.ndarray:
+    """Fold of each group (G,) as scikit-learn's GroupKFold assigns them: largest groups
+    first, each to the fold with the fewest samples so far."""
+    load = np.zeros(folds)
+    fold_of_group = np.zeros(len(sizes), dtype=np.int64)
+    for group in np.argsort(sizes, kind="stable")[::-1]:
+        fold = int(np.argmin(load))
+        fold_of_group[group] = fold
+        load[fold] += sizes[group]
+    return fold_of_group
+
+
+def _solve(
+    samples: float,
+    sum_x: np.ndarray,
+    sum_y: np.ndarray,
+    sum_xx: np.ndarray,
+    sum_xy: np.ndarray,
+    alpha: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Coefficients on raw features (F, D) and intercept (D,) of the standardised ridge:
+    (G_c + alpha diag(s^2)) b = C_c with the centred moments G_c, C_c and s^2 = diag(G_c) / n
+    (1 for a constant feature)."""
+    x_bar, y_bar = sum_x / samples, sum_y / samples
+    gram = sum_xx - samples * np.outer(x_bar, x_bar)
+    cross = sum_xy - samples * np.outer(x_bar, y_bar)
+    variance = np.diag(gram) / samples
+    constant = variance <= (1e-10 * (1.0 + np.abs(x_bar))) ** 2  # scaled by 1, as sklearn does
+    variance = np.where(constant, 1.0, variance)
+    coef = np.linalg.solve(gram + alpha * np.diag(variance), cross)
+    return coef, y_bar - x_bar @ coef

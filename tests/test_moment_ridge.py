@@ -1,0 +1,64 @@
+"""Ridge from per-sample moments (predictor.moment_ridge) against scikit-learn's ridge on the
+rows themselves."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sklearn.linear_model import Ridge
+from sklearn.model_selection import GridSearchCV, GroupKFold
+from sklearn.pipeline import make_pipeline
+from sklearn.preprocessing import StandardScaler
+
+from predictor.moment_ridge import fit_moment_ridge
+
+ALPHAS = (1e-3, 1e-1, 1.0, 10.0, 1e3)
+
+
+def noisy_linear(samples: int, features: int, outputs: int, seed: int):
+    gen = np.random.default_rng(seed)
+    x = gen.normal(size=(samples, features)) * gen.uniform(0.01, 10.0, size=features)
+    y = x @ gen.normal(size=(features, outputs)) + gen.normal(size=(samples, outputs))
+    groups = gen.integers(0, 12, size=samples)
+    return x, y, groups
+
+
+def test_one_row_per_sample_is_scikit_learns_cross_validated_standardised_ridge():
+    x, y, groups = noisy_linear(90, 5, 3, seed=0)
+    moment = x[:, :, None] * x[:, None, :]
+    coef, intercept, alpha = fit_moment_ridge(x, moment, y, groups, ALPHAS, folds=5)
+    search = GridSearchCV(
+        make_pipeline(StandardScaler(), Ridge()),
+        {"ridge__alpha": list(ALPHAS)},
+        cv=GroupKFold(n_splits=5),
+        scoring="neg_mean_squared_error",
+    ).fit(x, y, groups=groups)
+    assert alpha == search.best_params_["ridge__alpha"]
+    expected = search.best_estimator_.predict(x)
+    np.testing.assert_allclose(x @ coef + intercept, expected, rtol=1e-8, atol=1e-8)
+
+
+@pytest.mark.parametrize("alpha", [1e-3, 1.0, 100.0])
+def test_weighted_rows_are_scikit_learns_weighted_ridge_on_those_rows(alpha: float):
+    gen = np.random.default_rng(1)
+    samples, rows, features = 40, 4, 3  # each sample: 4 rows with weights summing to one
+    x = gen.normal(size=(samples, rows, features)) * np.array([1.0, 5.0, 0.1])
+    weight = gen.dirichlet(np.ones(rows), size=samples)  # (K, R)
+    y = gen.normal(size=(samples, 2)) + x[:, 0] @ gen.normal(size=(features, 2))
+    mean = np.einsum("kr,krf->kf", weight, x)
+    moment = np.einsum("kr,krf,krg->kfg", weight, x, x)
+    groups = np.arange(samples) % 8
+    coef, intercept, chosen = fit_moment_ridge(mean, moment, y, groups, (alpha,), folds=4)
+    assert chosen == alpha
+    flat_x, flat_w = x.reshape(-1, features), weight.reshape(-1)
+    flat_y = np.repeat(y, rows, axis=0)
+    scaler = StandardScaler().fit(flat_x, sample_weight=flat_w)
+    ridge = Ridge(alpha=alpha).fit(scaler.transform(flat_x), flat_y, sample_weight=flat_w)
+    np.testing.assert_allclose(coef, ridge.coef_.T / scaler.scale_[:, None], rtol=1e-7)
+    np.testing.assert_allclose(intercept, ridge.intercept_ - scaler.mean_ @ coef, atol=1e-9)
+
+
+def test_one_group_cannot_be_cross_validated():
+    x, y, _ = noisy_linear(10, 2, 1, seed=2)
+    with pytest.raises(ValueError, match="two groups"):
+        fit_moment_ridge(x, x[:, :, None] * x[:, None, :], y, np.zeros(10), ALPHAS, folds=5)
