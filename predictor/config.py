@@ -30,6 +30,7 @@ LR_SCHEDULES = ("constant", "cosine")
 ROLLOUT_FEEDS = ("sample", "mean")
 MEAN_LOSSES = ("nll", "displacement")
 NEIGHBOURS = ("all", "radius", "knn")  # ModelConfig.neighbours (predictor.graph)
+ATTENDED_FITS = ("mean", "edges")  # ModelConfig.attended_fit
 
 
 @dataclass(frozen=True)
@@ -149,6 +150,18 @@ class ModelConfig:
     # 1.714 m learnt, 1.494 m refitted; ridge on the labelled car 1.369 m). Off: measured
     # seeds and trade-offs in docs/PREDICTOR.md. Needs highway_attended.
     attended_refit: bool = False
+    # What attended_refit regresses on: "mean", the attention-weighted mean sum_j theta_ij z_ij
+    # of the edge features; "edges", each edge (own_i, z_ij) as a row of its own with weight
+    # theta_ij (predictor.moment_ridge). The rollout reads the same sum_j theta_ij z_ij either
+    # way; what differs is the scale the map is fitted for. Fitted on the mean, the map reads
+    # whatever attention it is fitted with: under uniform attention on Halting Car v1 it
+    # rescaled the leader's 1/21 share of the average (untrained main-car test ADE 7.592 m
+    # uniform, 7.332 m with the labelled car), so focusing the attention gained nothing within
+    # an epoch and overshot the map's scale. Fitted per edge, the map is a per-neighbour
+    # reading, weak while the attention is spread (11.723 m there) and the mean fit's equal
+    # under one-hot attention, so moving the attention to the car that explains the future
+    # lowers the loss (tests/test_highway.py). Needs attended_refit.
+    attended_fit: str = "mean"
     # The highway's maps (own and attended) chosen per role *and* per relation to the attended
     # agents: whether they lie ahead of the agent or behind it (the sign of sum_j theta_ij x_ij,
     # their attention-weighted longitudinal position in the agent's frame, at the last observed
@@ -214,6 +227,13 @@ class ModelConfig:
             raise ValueError("ModelConfig.highway_attended needs highway_steps")
         if self.attended_refit and not self.highway_attended:
             raise ValueError("ModelConfig.attended_refit needs highway_attended")
+        if self.attended_fit not in ATTENDED_FITS:
+            raise ValueError(
+                f"ModelConfig.attended_fit must be one of {ATTENDED_FITS}, "
+                f"got {self.attended_fit!r}"
+            )
+        if self.attended_fit != "mean" and not self.attended_refit:
+            raise ValueError("ModelConfig.attended_fit 'edges' needs attended_refit")
         if self.highway_relation and not self.attended_refit:
             raise ValueError("ModelConfig.highway_relation needs attended_refit")
         if self.highway_role_groups:
@@ -468,6 +488,7 @@ def make_configs(
             "highway_steps": 0,
             "highway_attended": False,
             "attended_refit": False,
+            "attended_fit": "mean",
             "highway_relation": False,
         }
         preset_model = {**preset_model, "rollout_prior": "previous", **no_highway}
@@ -525,6 +546,7 @@ ADDED_MODEL_FIELDS: dict[str, Any] = {
     "highway_horizon": 45,
     "highway_attended": False,
     "attended_refit": False,
+    "attended_fit": "mean",
     "highway_relation": False,
     "role_attention_bias": False,
     "highway_role_groups": "",

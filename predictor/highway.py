@@ -39,6 +39,7 @@ from torch import Tensor
 
 from predictor.agent_frame import rotate
 from predictor.baselines import fit_ridge_cv
+from predictor.moment_ridge import fit_moment_ridge
 
 HIGHWAY_ALPHAS: tuple[float, ...] = tuple(float(a) for a in np.logspace(-3, 4, 15))
 HIGHWAY_FOLDS = 5  # grouped cross-validation folds (fewer if there are fewer training scenes)
@@ -104,14 +105,17 @@ def fit_highway(
     roles: Tensor,
     num_roles: int,
     horizon: int,
+    moments: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, dict[int, float]]:
     """Per-role linear maps from history features (B, N, F) to velocity changes.
 
     offsets (B, N, T_pred, 2) are the targets (offsets from constant velocity), `usable` (B, N)
-    the samples to fit on, roles (B, N) in [0, num_roles). Returns weight (R, F, horizon, 2),
-    bias (R, horizon, 2) and the chosen alpha per fitted role. Steps beyond the data's T_pred
-    repeat its last velocity change; a role with fewer than two training scenes keeps zeros
-    (constant velocity).
+    the samples to fit on, roles (B, N) in [0, num_roles). With `moments` (B, N, F, F) each
+    sample stands for weighted rows whose mean is its features and whose second moment is
+    that (the attended highway's per-edge fit; predictor.moment_ridge). Returns weight (R, F,
+    horizon, 2), bias (R, horizon, 2) and the chosen alpha per fitted role. Steps beyond the
+    data's T_pred repeat its last velocity change; a role with fewer than two training scenes
+    keeps zeros (constant velocity).
     """
     num_features, num_pred = features.shape[-1], offsets.shape[2]
     fitted = min(num_pred, horizon)
@@ -126,10 +130,16 @@ def fit_highway(
             continue
         x = features[rows].double().numpy()  # (K, F)
         y = offsets[rows][:, :fitted].flatten(1).double().numpy()  # (K, fitted * 2)
-        model, alphas[role] = fit_ridge_cv(x, y, groups, HIGHWAY_ALPHAS, HIGHWAY_FOLDS)
-        scaler, ridge = model[0], model[-1]
-        coef = ridge.coef_.T / scaler.scale_[:, None]  # (F, fitted * 2) on raw features
-        intercept = ridge.intercept_ - scaler.mean_ @ coef  # (fitted * 2,)
+        if moments is None:
+            model, alphas[role] = fit_ridge_cv(x, y, groups, HIGHWAY_ALPHAS, HIGHWAY_FOLDS)
+            scaler, ridge = model[0], model[-1]
+            coef = ridge.coef_.T / scaler.scale_[:, None]  # (F, fitted * 2) on raw features
+            intercept = ridge.intercept_ - scaler.mean_ @ coef  # (fitted * 2,)
+        else:
+            second = moments[rows].double().numpy()  # (K, F, F)
+            coef, intercept, alphas[role] = fit_moment_ridge(
+                x, second, y, groups, HIGHWAY_ALPHAS, HIGHWAY_FOLDS
+            )
         coef = torch.from_numpy(coef).view(num_features, fitted, 2)
         intercept = torch.from_numpy(intercept).view(fitted, 2)
         # offsets -> per-step velocity changes (differences along the predicted steps)
@@ -189,17 +199,24 @@ def fit_cross_fitted(
     roles: Tensor,
     num_roles: int,
     horizon: int,
+    moments: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """`fit_highway` on all scenes (B, ...) and once without each cross-fitting fold (scene b is
     in fold b mod CROSS_FIT_FOLDS): weight (R, F, horizon, 2), bias (R, horizon, 2) and the
     fold maps (CROSS_FIT_FOLDS, R, F, horizon, 2), (CROSS_FIT_FOLDS, R, horizon, 2)."""
-    weight, bias, _ = fit_highway(features, offsets, samples, roles, num_roles, horizon)
+    weight, bias, _ = fit_highway(features, offsets, samples, roles, num_roles, horizon, moments)
     fold = fold_of(torch.arange(features.shape[0]), CROSS_FIT_FOLDS)  # (B,)
     fold_maps = []
     for k in range(CROSS_FIT_FOLDS):
         rest = fold != k
         fitted = fit_highway(
-            features[rest], offsets[rest], samples[rest], roles[rest], num_roles, horizon
+            features[rest],
+            offsets[rest],
+            samples[rest],
+            roles[rest],
+            num_roles,
+            horizon,
+            None if moments is None else moments[rest],
         )
         fold_maps.append(fitted[:2])
     fold_weight = torch.stack([w for w, _ in fold_maps])

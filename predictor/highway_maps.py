@@ -166,14 +166,23 @@ class HighwayMaps:
             )
             theta = self._block(steps, 0, num_observed, None).attention[-1]  # (B, N, N-1)
             parts.append(self._refit_samples(steps, theta))
-        own, attended, offsets, samples, slots = (torch.cat(column) for column in zip(*parts))
+        own, attended, second, offsets, samples, slots = (
+            torch.cat(column) for column in zip(*parts)
+        )
+        features = torch.cat([own, attended], -1)  # (B, N, F_own + F_att)
+        moments = None
+        if cfg.attended_fit == "edges":  # rows (own_i, z_ij) weighted by theta_ij
+            moments = features.unsqueeze(-1) * features.unsqueeze(-2)  # (B, N, F, F)
+            split = own.shape[-1]
+            moments[..., split:, split:] = second
         weight, bias, fold_weight, fold_bias = fit_cross_fitted(
-            torch.cat([own, attended], -1),
+            features,
             offsets,
             samples,
             slots,
             self.num_maps,
             cfg.highway_horizon,
+            moments,
         )
         split = own.shape[-1]
         scale = self.anchor_std.view(1, 1, 1, 2)  # attended maps are in units of anchor_std
@@ -195,8 +204,10 @@ class HighwayMaps:
 
     def _refit_samples(self, steps: _Steps, theta: Tensor) -> tuple[Tensor, ...]:
         """Regression samples of `refit_attended` for one batch: own features (B, N, F_own),
-        attended features sum_j theta_ij z_ij (B, N, F_att), future offsets (B, N, T_pred, 2),
-        which agents to fit on (B, N) and each agent's map (B, N)."""
+        attended features sum_j theta_ij z_ij (B, N, F_att) and their attention-weighted second
+        moment sum_j theta_ij z_ij z_ij^T (B, N, F_att, F_att) (an empty tensor unless
+        `attended_fit` is "edges"), future offsets (B, N, T_pred, 2), which agents to fit on
+        (B, N) and each agent's map (B, N)."""
         rotation, t_obs = steps.frame[1], steps.num_observed
         own, usable = history_features(
             steps.pos, steps.present, t_obs, rotation, self.config.highway_steps
@@ -209,8 +220,11 @@ class HighwayMaps:
             mask.unsqueeze(-1), (edges - self.attended_mean) / self.attended_std, 0.0
         )
         attended = (theta.unsqueeze(-1) * standard).sum(2)  # (B, N, F_att)
+        second = attended.new_zeros(0)
+        if self.config.attended_fit == "edges":
+            second = torch.einsum("bne,bnef,bneg->bnfg", theta, standard, standard)
         offsets, complete = future_offsets(steps.pos, steps.present, t_obs, rotation)
-        return own, attended, offsets, usable & complete, slots
+        return own, attended, second, offsets, usable & complete, slots
 
     def _fit_highway(self, steps: _Steps, roles: Tensor | None) -> None:
         """Fit the highway (predictor.highway) on the agents present over the whole history

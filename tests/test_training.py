@@ -150,9 +150,14 @@ REFIT_AGENT = {
     [
         None,
         REFIT_AGENT,
-        {**REFIT_AGENT, "role_attention_bias": True, "highway_role_groups": "0,0,1"},
+        {
+            **REFIT_AGENT,
+            "role_attention_bias": True,
+            "highway_role_groups": "0,0,1",
+            "attended_fit": "edges",
+        },
     ],
-    ids=["paper", "agent_refit", "agent_role_bias_groups"],
+    ids=["paper", "agent_refit", "agent_role_bias_groups_edges"],
 )
 def test_resume_after_interruption_equals_uninterrupted(
     braking_file: Path, tmp_path: Path, refit: dict | None

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from pipeline.cli import ArgumentParser, fail, require_file, run_main
 from predictor.config import (
+    ATTENDED_FITS,
     DEFAULT_PRESET,
     FRAMES,
     LR_SCHEDULES,
@@ -60,6 +61,7 @@ MODEL_FLAGS = (
     "highway_horizon",
     "highway_attended",
     "attended_refit",
+    "attended_fit",
     "highway_relation",
     "role_attention_bias",
     "highway_role_groups",
@@ -97,6 +99,7 @@ CHOICES = {  # string fields with a fixed set of values
     "rollout_feed": ROLLOUT_FEEDS,
     "mean_loss": MEAN_LOSSES,
     "neighbours": NEIGHBOURS,
+    "attended_fit": ATTENDED_FITS,
 }
 
 
