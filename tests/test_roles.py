@@ -4,6 +4,8 @@ reads roles refuses data without them."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
@@ -133,7 +135,9 @@ def test_without_role_input_the_network_ignores_roles_but_the_highway_reads_them
     config = ModelConfig(**SMALL, **anchored, num_roles=3, role_input=False, highway_steps=3)
     model = SmoothAttentionPredictor(config)
     randomise(model, seed=2)
-    with torch.no_grad():  # a different highway map per role
+    with torch.no_grad():  # a different highway map per role, its output range left open
         model.highway_weight.copy_(0.1 * torch.randn(model.highway_weight.shape))
+        model.highway_low.fill_(-math.inf)
+        model.highway_high.fill_(math.inf)
     out = [model.predict(positions, valid, 6, roles=r).rollout.mean for r in (roles, swapped)]
     assert (out[0] - out[1]).abs().max() > 1e-4  # the highway still picks its map by role
