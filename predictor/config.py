@@ -30,7 +30,7 @@ LR_SCHEDULES = ("constant", "cosine")
 ROLLOUT_FEEDS = ("sample", "mean")
 MEAN_LOSSES = ("nll", "displacement")
 NEIGHBOURS = ("all", "radius", "knn")  # ModelConfig.neighbours (predictor.graph)
-ATTENDED_FITS = ("mean", "edges")  # ModelConfig.attended_fit
+ATTENDED_FITS = ("mean", "edges", "edge_relations")  # ModelConfig.attended_fit
 
 
 @dataclass(frozen=True)
@@ -160,7 +160,12 @@ class ModelConfig:
     # an epoch and overshot the map's scale. Fitted per edge, the map is a per-neighbour
     # reading, weak while the attention is spread (11.723 m there) and the mean fit's equal
     # under one-hot attention, so moving the attention to the car that explains the future
-    # lowers the loss (tests/test_highway.py). Needs attended_refit.
+    # lowers the loss (tests/test_highway.py). "edge_relations": "edges" with each edge read by
+    # the map of its own relation (the other agent ahead of or behind the agent, see
+    # highway_relation) instead of one relation per agent from the attention-weighted mean
+    # position, which under spread attention is the distractors' side, not the attended car's;
+    # the rollout mixes the two relations' readings by their share of the attention
+    # (predictor.highway.edge_relations). Needs highway_relation. Needs attended_refit.
     attended_fit: str = "mean"
     # The highway's maps (own and attended) chosen per role *and* per relation to the attended
     # agents: whether they lie ahead of the agent or behind it (the sign of sum_j theta_ij x_ij,
@@ -178,6 +183,14 @@ class ModelConfig:
     # on the other main car; docs/PREDICTOR.md). Needs num_roles; ignored by fixed attention.
     # Off: it finds the other main car in about half the seeds, and loses Halting Car's leader.
     role_attention_bias: bool = False
+    # With highway_role_groups: the role_attention_bias per pair of role groups (attending,
+    # attended) instead of roles, so roles that drive alike also attend alike and pool the
+    # bias's gradient. Double Merge's colours attend each other: per role, the gradient at the
+    # first refit pointed green's bias at brown six times more weakly than brown's at green
+    # (docs/PREDICTOR.md), and after training brown attended green (weight 0.49-0.63) while
+    # green stayed on the distractors (0.02-0.14); one (main, main) bias reads both.
+    # Needs role_attention_bias and highway_role_groups.
+    role_bias_by_group: bool = False
     # Which roles share the highway's maps: comma-separated group per role ("0,0,1": the first
     # two roles pool their maps); "" gives each role its own. Roles that drive alike but swap
     # places between cases (Double Merge's colours: the rear car in one case, the front car in
@@ -233,9 +246,15 @@ class ModelConfig:
                 f"got {self.attended_fit!r}"
             )
         if self.attended_fit != "mean" and not self.attended_refit:
-            raise ValueError("ModelConfig.attended_fit 'edges' needs attended_refit")
+            raise ValueError(f"ModelConfig.attended_fit {self.attended_fit!r} needs attended_refit")
+        if self.attended_fit == "edge_relations" and not self.highway_relation:
+            raise ValueError("ModelConfig.attended_fit 'edge_relations' needs highway_relation")
         if self.highway_relation and not self.attended_refit:
             raise ValueError("ModelConfig.highway_relation needs attended_refit")
+        if self.role_bias_by_group and not (self.role_attention_bias and self.highway_role_groups):
+            raise ValueError(
+                "ModelConfig.role_bias_by_group needs role_attention_bias and highway_role_groups"
+            )
         if self.highway_role_groups:
             parts = self.highway_role_groups.split(",")
             if not all(p.strip().isdigit() for p in parts):
@@ -549,6 +568,7 @@ ADDED_MODEL_FIELDS: dict[str, Any] = {
     "attended_fit": "mean",
     "highway_relation": False,
     "role_attention_bias": False,
+    "role_bias_by_group": False,
     "highway_role_groups": "",
     "neighbours": "all",
     "neighbour_radius_m": 50.0,

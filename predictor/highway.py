@@ -106,17 +106,21 @@ def fit_highway(
     num_roles: int,
     horizon: int,
     moments: Tensor | None = None,
+    weights: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, dict[int, float]]:
     """Per-role linear maps from history features (B, N, F) to velocity changes.
 
     offsets (B, N, T_pred, 2) are the targets (offsets from constant velocity), `usable` (B, N)
     the samples to fit on, roles (B, N) in [0, num_roles). With `moments` (B, N, F, F) each
     sample stands for weighted rows whose mean is its features and whose second moment is
-    that (the attended highway's per-edge fit; predictor.moment_ridge). Returns weight (R, F,
-    horizon, 2), bias (R, horizon, 2) and the chosen alpha per fitted role. Steps beyond the
-    data's T_pred repeat its last velocity change; a role with fewer than two training scenes
-    keeps zeros (constant velocity).
+    that (the attended highway's per-edge fit; predictor.moment_ridge), and `weights` (B, N),
+    positive where usable, the total weight of each sample's rows (one without). Returns
+    weight (R, F, horizon, 2), bias (R, horizon, 2) and the chosen alpha per fitted role.
+    Steps beyond the data's T_pred repeat its last velocity change; a role with fewer than two
+    training scenes keeps zeros (constant velocity).
     """
+    if weights is not None and moments is None:
+        raise ValueError("fit_highway: sample weights need moments")
     num_features, num_pred = features.shape[-1], offsets.shape[2]
     fitted = min(num_pred, horizon)
     weight = torch.zeros(num_roles, num_features, horizon, 2, dtype=torch.float64)
@@ -137,8 +141,9 @@ def fit_highway(
             intercept = ridge.intercept_ - scaler.mean_ @ coef  # (fitted * 2,)
         else:
             second = moments[rows].double().numpy()  # (K, F, F)
+            mass = None if weights is None else weights[rows].double().numpy()
             coef, intercept, alphas[role] = fit_moment_ridge(
-                x, second, y, groups, HIGHWAY_ALPHAS, HIGHWAY_FOLDS
+                x, second, y, groups, HIGHWAY_ALPHAS, HIGHWAY_FOLDS, mass
             )
         coef = torch.from_numpy(coef).view(num_features, fitted, 2)
         intercept = torch.from_numpy(intercept).view(fitted, 2)
@@ -200,11 +205,14 @@ def fit_cross_fitted(
     num_roles: int,
     horizon: int,
     moments: Tensor | None = None,
+    weights: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """`fit_highway` on all scenes (B, ...) and once without each cross-fitting fold (scene b is
     in fold b mod CROSS_FIT_FOLDS): weight (R, F, horizon, 2), bias (R, horizon, 2) and the
     fold maps (CROSS_FIT_FOLDS, R, F, horizon, 2), (CROSS_FIT_FOLDS, R, horizon, 2)."""
-    weight, bias, _ = fit_highway(features, offsets, samples, roles, num_roles, horizon, moments)
+    weight, bias, _ = fit_highway(
+        features, offsets, samples, roles, num_roles, horizon, moments, weights
+    )
     fold = fold_of(torch.arange(features.shape[0]), CROSS_FIT_FOLDS)  # (B,)
     fold_maps = []
     for k in range(CROSS_FIT_FOLDS):
@@ -217,6 +225,7 @@ def fit_cross_fitted(
             num_roles,
             horizon,
             None if moments is None else moments[rest],
+            None if weights is None else weights[rest],
         )
         fold_maps.append(fitted[:2])
     fold_weight = torch.stack([w for w, _ in fold_maps])
@@ -290,6 +299,32 @@ def relation_slots(roles: Tensor, theta: Tensor, features: Tensor, mask: Tensor)
     along = torch.where(mask, features[..., 0], 0.0)  # (B, N, N-1)
     ahead = (theta * along).sum(-1) > 0  # (B, N)
     return 2 * roles + (~ahead).long()
+
+
+def edge_relations(
+    groups: Tensor, theta: Tensor, features: Tensor, mask: Tensor, mean: Tensor, std: Tensor
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The attention split by each edge's own relation (`ModelConfig.attended_fit`
+    "edge_relations"): for the agents ahead of agent i (x_ij > 0, `neighbour_features`' first
+    channel) and those behind it, in that order, the map each reads (2, B, N) (2 x group + 0
+    ahead, + 1 behind), its share of i's attention over the usable edges (2, B, N) (all of it
+    behind where i has none), and the share-weighted mean (2, B, N, F) and second moment
+    (2, B, N, F, F) of their standardised edge features z_ij. groups (B, N), theta and mask
+    (B, N, N-1), features (B, N, N-1, F), mean and std (F,)."""
+    standard = torch.where(mask.unsqueeze(-1), (features - mean) / std, 0.0)
+    used = torch.where(mask, theta, 0.0)
+    total = used.sum(-1, keepdim=True)  # (B, N, 1)
+    share = used / total.clamp(min=1e-12)
+    ahead = mask & (features[..., 0] > 0)
+    sides = torch.stack([ahead, mask & ~ahead])  # (2, B, N, N-1)
+    weight = torch.where(sides, share, 0.0)  # (2, B, N, N-1)
+    ahead_mass, behind_mass = weight.sum(-1)  # (B, N) each
+    masses = torch.stack([ahead_mass, torch.where(total.squeeze(-1) > 0, behind_mass, 1.0)])
+    scale = masses.clamp(min=1e-12).unsqueeze(-1)
+    attended = torch.einsum("sbne,bnef->sbnf", weight, standard) / scale
+    second = torch.einsum("sbne,bnef,bneg->sbnfg", weight, standard, standard) / scale[..., None]
+    slots = 2 * groups + torch.arange(2, device=groups.device).view(2, 1, 1)
+    return slots, masses, attended, second
 
 
 def uniform_attention(mask: Tensor) -> Tensor:

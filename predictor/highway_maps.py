@@ -21,6 +21,7 @@ from predictor.highway import (
     attended_changes,
     change_bounds,
     clamp_changes,
+    edge_relations,
     fit_cross_fitted,
     fold_of,
     future_offsets,
@@ -36,6 +37,9 @@ if TYPE_CHECKING:  # annotations only: the model module imports this one
     from predictor.model import _Steps
 
 MIN_STAT_STD = 1e-4  # floor of the fitted standard deviations (in metres)
+# "edge_relations": a relation holding less of an agent's attention than this is not fitted on
+# for that agent (its rows would carry no weight; the ridge needs positive weights)
+MIN_RELATION_SHARE = 1e-6
 
 
 class HighwayMaps:
@@ -91,6 +95,9 @@ class HighwayMaps:
         edges = mask = None
         if self.config.highway_attended:
             edges, mask = self._neighbour_features(steps)
+            if self.config.attended_fit == "edge_relations":
+                change = self._edge_relation_changes(steps, theta, slots, features, usable)
+                return rotate(change.permute(2, 0, 1, 3), rotation).permute(1, 2, 0, 3)
             if self.config.highway_relation:
                 slots = relation_slots(slots, theta, edges, mask)
         weight, bias = agent_maps(
@@ -119,20 +126,58 @@ class HighwayMaps:
             head,
         )
 
+    def _attended_maps(self, steps: _Steps, slots: Tensor) -> Tensor:
+        """Each agent's attended map (B, N, F, horizon, 2) for its map slot (B, N): the one
+        fitted without the scene's fold on training scenes of a refitted model."""
+        if self.config.attended_refit and steps.scenes is not None:  # cross-fitted maps
+            fold = fold_of(steps.scenes, CROSS_FIT_FOLDS).unsqueeze(-1).expand_as(slots)
+            return self.attended_fold_weight[fold, slots]
+        return self.attended_weight[slots]
+
     def _attended(
         self, steps: _Steps, theta: Tensor, slots: Tensor, features: Tensor, mask: Tensor
     ) -> Tensor:
         """The attended highway's velocity changes (B, N, horizon, 2), agent frame [m/step];
         slots (B, N): each agent's map."""
-        if self.config.attended_refit and steps.scenes is not None:  # cross-fitted maps
-            fold = fold_of(steps.scenes, CROSS_FIT_FOLDS).unsqueeze(-1).expand_as(slots)
-            weight = self.attended_fold_weight[fold, slots]  # (B, N, F, horizon, 2)
-        else:
-            weight = self.attended_weight[slots]  # (B, N, F, horizon, 2)
+        weight = self._attended_maps(steps, slots)
         change = attended_changes(
             features, mask, theta, self.attended_mean, self.attended_std, weight
         )
         return change * self.anchor_std  # (B, N, horizon, 2)
+
+    def _edge_relation_changes(
+        self, steps: _Steps, theta: Tensor, groups: Tensor, features: Tensor, usable: Tensor
+    ) -> Tensor:
+        """The highway's velocity changes under attended_fit "edge_relations" (B, N, horizon,
+        2), agent frame [m/step]: each relation's map reads the agent's own history and the
+        attention-weighted mean of the edges in that relation, clamped to that map's range,
+        and the readings are mixed by the relation's share of the attention."""
+        edges, mask = self._neighbour_features(steps)
+        slots, masses, attended, _ = edge_relations(
+            groups, theta, edges, mask, self.attended_mean, self.attended_std
+        )
+        change = features.new_zeros(0)
+        for side in range(2):
+            weight, bias = agent_maps(
+                self.highway_weight,
+                self.highway_bias,
+                self.highway_fold_weight,
+                self.highway_fold_bias,
+                slots[side],
+                steps.scenes,
+            )
+            own = velocity_changes(features, usable, weight, bias)  # (B, N, horizon, 2)
+            read = torch.einsum(
+                "bnf,bnfkc->bnkc", attended[side], self._attended_maps(steps, slots[side])
+            )
+            reading = clamp_changes(
+                own + read * self.anchor_std,
+                self.highway_low[slots[side]],
+                self.highway_high[slots[side]],
+            )
+            part = masses[side][..., None, None] * reading
+            change = part if side == 0 else change + part
+        return change
 
     @torch.no_grad()
     def refit_attended(
@@ -166,12 +211,12 @@ class HighwayMaps:
             )
             theta = self._block(steps, 0, num_observed, None).attention[-1]  # (B, N, N-1)
             parts.append(self._refit_samples(steps, theta))
-        own, attended, second, offsets, samples, slots = (
+        own, attended, second, offsets, samples, slots, masses = (
             torch.cat(column) for column in zip(*parts)
         )
         features = torch.cat([own, attended], -1)  # (B, N, F_own + F_att)
         moments = None
-        if cfg.attended_fit == "edges":  # rows (own_i, z_ij) weighted by theta_ij
+        if cfg.attended_fit != "mean":  # rows (own_i, z_ij) weighted by theta_ij
             moments = features.unsqueeze(-1) * features.unsqueeze(-2)  # (B, N, F, F)
             split = own.shape[-1]
             moments[..., split:, split:] = second
@@ -183,6 +228,7 @@ class HighwayMaps:
             self.num_maps,
             cfg.highway_horizon,
             moments,
+            masses if cfg.attended_fit == "edge_relations" else None,
         )
         split = own.shape[-1]
         scale = self.anchor_std.view(1, 1, 1, 2)  # attended maps are in units of anchor_std
@@ -207,13 +253,30 @@ class HighwayMaps:
         attended features sum_j theta_ij z_ij (B, N, F_att) and their attention-weighted second
         moment sum_j theta_ij z_ij z_ij^T (B, N, F_att, F_att) (an empty tensor unless
         `attended_fit` is "edges"), future offsets (B, N, T_pred, 2), which agents to fit on
-        (B, N) and each agent's map (B, N)."""
+        (B, N), each agent's map (B, N) and its weight (B, N) (ones). Under "edge_relations"
+        each agent is two samples, one per relation (B, 2N, ...), weighted by its share of the
+        attention (predictor.highway.edge_relations)."""
         rotation, t_obs = steps.frame[1], steps.num_observed
         own, usable = history_features(
             steps.pos, steps.present, t_obs, rotation, self.config.highway_steps
         )
         edges, mask = self._neighbour_features(steps)
         slots = self._groups_of(steps.role_index, usable)
+        if self.config.attended_fit == "edge_relations":
+            slots, masses, attended, second = edge_relations(
+                slots, theta, edges, mask, self.attended_mean, self.attended_std
+            )
+            offsets, complete = future_offsets(steps.pos, steps.present, t_obs, rotation)
+            fitted = (usable & complete).unsqueeze(0) & (masses > MIN_RELATION_SHARE)
+            return (
+                torch.cat([own, own], 1),
+                torch.cat(list(attended), 1),
+                torch.cat(list(second), 1),
+                torch.cat([offsets, offsets], 1),
+                torch.cat(list(fitted), 1),
+                torch.cat(list(slots), 1),
+                torch.cat(list(masses), 1),
+            )
         if self.config.highway_relation:
             slots = relation_slots(slots, theta, edges, mask)
         standard = torch.where(
@@ -224,7 +287,15 @@ class HighwayMaps:
         if self.config.attended_fit == "edges":
             second = torch.einsum("bne,bnef,bneg->bnfg", theta, standard, standard)
         offsets, complete = future_offsets(steps.pos, steps.present, t_obs, rotation)
-        return own, attended, second, offsets, usable & complete, slots
+        return (
+            own,
+            attended,
+            second,
+            offsets,
+            usable & complete,
+            slots,
+            torch.ones_like(theta[..., 0]),
+        )
 
     def _fit_highway(self, steps: _Steps, roles: Tensor | None) -> None:
         """Fit the highway (predictor.highway) on the agents present over the whole history

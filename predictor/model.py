@@ -157,7 +157,8 @@ class SmoothAttentionPredictor(HighwayMaps, nn.Module):
         self.f_attn = nn.Linear(hid, config.attn_dim) if learned else None
         self.role_pair = None
         if config.role_attention_bias and learned and config.num_roles > 0:
-            self.role_pair = nn.Parameter(torch.zeros(config.num_roles, config.num_roles))
+            kinds = self.num_groups if config.role_bias_by_group else config.num_roles
+            self.role_pair = nn.Parameter(torch.zeros(kinds, kinds))
         self.g_pred = nn.LSTM(emb + 2 * hid, config.node_hidden)
         if config.detach_covariance:  # separate heads: offset (2), Cholesky raw (3)
             self.f_pred = nn.Linear(config.node_hidden, 2)
@@ -596,6 +597,8 @@ class SmoothAttentionPredictor(HighwayMaps, nn.Module):
             query = self.f_attn(o_self) @ self.f_attn.weight  # (S, B*N, H)
             scores = (o_edge * query.index_select(1, graph.tail)).sum(-1)  # (S, E)
             if self.role_pair is not None and roles is not None:
+                if self.config.role_bias_by_group:
+                    roles = self._groups_of(roles, roles)
                 flat = roles.flatten()  # (B*N,)
                 pair = self.role_pair[flat[graph.tail], flat[graph.head]]  # (E,)
                 scores = scores + pair

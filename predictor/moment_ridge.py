@@ -22,19 +22,25 @@ def fit_moment_ridge(
     groups: np.ndarray,
     alphas: tuple[float, ...],
     folds: int,
+    weights: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Ridge on standardised features from each sample's weighted rows, given by their mean
-    (K, F) and second moment (K, F, F) (weights summing to one per sample), targets (K, D) and
-    groups (K,) (e.g. scenes, never split by a fold). Minimises sum_k E_k |y_k - x b - c|^2 +
-    alpha |s b|^2, s the features' standard deviations over all rows (population, 1 where
-    zero), as Ridge on StandardScaler's output does. Alpha is the one of `alphas` with the
-    smallest mean squared error of the held-out samples' predictions E_k[x] b + c, averaged
-    over min(folds, groups) folds of whole groups (scikit-learn's GroupKFold assignment).
-    Returns coef (F, D), intercept (D,) and that alpha."""
+    (K, F) and second moment (K, F, F) (row weights summing to one per sample, or to the
+    sample's `weights` (K,), positive, where given), targets (K, D) and groups (K,) (e.g.
+    scenes, never split by a fold). Minimises sum_k w_k E_k |y_k - x b - c|^2 + alpha |s b|^2,
+    s the features' standard deviations over all rows (weighted, population, 1 where zero),
+    as Ridge on StandardScaler's output does. Alpha is the one of `alphas` with the smallest
+    (weighted) mean squared error of the held-out samples' predictions E_k[x] b + c, averaged
+    over min(folds, groups) folds of whole groups (scikit-learn's GroupKFold assignment, by
+    sample counts). Returns coef (F, D), intercept (D,) and that alpha."""
     names, inverse = np.unique(groups, return_inverse=True)
     if len(names) < 2:
         raise ValueError(f"ridge cross-validation needs at least two groups, got {len(names)}")
-    stats = _group_statistics(mean, moment, target, inverse, len(names))
+    if weights is None:
+        weights = np.ones(len(mean))
+    elif not np.all(weights > 0):
+        raise ValueError("fit_moment_ridge: sample weights must be positive")
+    stats = _group_statistics(mean, moment, target, weights, inverse, len(names))
     fold_of_group = _group_folds(np.bincount(inverse), min(folds, len(names)))
     scores = np.zeros(len(alphas))
     for fold in range(fold_of_group.max() + 1):
@@ -43,26 +49,33 @@ def fit_moment_ridge(
         for index, alpha in enumerate(alphas):
             coef, intercept = _solve(*train, alpha)
             error = mean[held] @ coef + intercept - target[held]
-            scores[index] += np.mean(error * error)
+            squared = (error * error).mean(1)  # (K_held,)
+            scores[index] += np.average(squared, weights=weights[held])
     best = float(alphas[int(np.argmin(scores))])
     coef, intercept = _solve(*(s.sum(0) for s in stats), best)
     return coef, intercept, best
 
 
 def _group_statistics(
-    mean: np.ndarray, moment: np.ndarray, target: np.ndarray, group: np.ndarray, count: int
+    mean: np.ndarray,
+    moment: np.ndarray,
+    target: np.ndarray,
+    weights: np.ndarray,
+    group: np.ndarray,
+    count: int,
 ) -> tuple[np.ndarray, ...]:
-    """Per group: samples (G,), sum of E[x] (G, F), of y (G, D), of E[x x^T] (G, F, F) and of
-    E[x] y^T (G, F, D)."""
-    samples = np.bincount(group, minlength=count).astype(np.float64)
+    """Per group, weighted by the samples' weights w: sum of w (G,), of w E[x] (G, F), of w y
+    (G, D), of w E[x x^T] (G, F, F) and of w E[x] y^T (G, F, D)."""
+    samples = np.bincount(group, weights=weights, minlength=count)
     sum_x = np.zeros((count, mean.shape[1]))
     sum_y = np.zeros((count, target.shape[1]))
     sum_xx = np.zeros((count, *moment.shape[1:]))
     sum_xy = np.zeros((count, mean.shape[1], target.shape[1]))
-    np.add.at(sum_x, group, mean)
-    np.add.at(sum_y, group, target)
-    np.add.at(sum_xx, group, moment)
-    np.add.at(sum_xy, group, mean[:, :, None] * target[:, None, :])
+    w = weights[:, None]
+    np.add.at(sum_x, group, w * mean)
+    np.add.at(sum_y, group, w * target)
+    np.add.at(sum_xx, group, w[:, :, None] * moment)
+    np.add.at(sum_xy, group, w[:, :, None] * mean[:, :, None] * target[:, None, :])
     return samples, sum_x, sum_y, sum_xx, sum_xy
 
 

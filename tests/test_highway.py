@@ -14,6 +14,7 @@ from predictor.highway import (
     CROSS_FIT_FOLDS,
     attended_changes,
     change_bounds,
+    edge_relations,
     fit_highway,
     future_offsets,
     history_features,
@@ -558,6 +559,60 @@ def test_relation_slots_follow_the_attention_weighted_position():
     assert relation_slots(roles, uniform, features, mask).tolist() == [[0, 3, 2]]
 
 
+def test_edge_relations_split_the_attention_by_each_edges_own_side():
+    groups = torch.tensor([[0, 1, 1]])
+    features = torch.zeros(1, 3, 2, 2)
+    features[0, 0, :, 0] = torch.tensor([5.0, -1.0])  # agent 0: one ahead, one behind
+    features[0, 0, :, 1] = torch.tensor([2.0, 4.0])
+    features[0, 1, :, 0] = torch.tensor([-2.0, -3.0])  # agent 1: both behind
+    features[0, 2, :, 0] = torch.tensor([4.0, 1.0])  # agent 2: no usable edge
+    mask = torch.tensor([[[True, True], [True, True], [False, False]]])
+    theta = torch.tensor([[[0.25, 0.75], [0.5, 0.5], [0.6, 0.4]]])
+    mean, std = torch.zeros(2), torch.tensor([1.0, 2.0])
+    slots, masses, attended, second = edge_relations(groups, theta, features, mask, mean, std)
+    assert slots.tolist() == [[[0, 2, 2]], [[1, 3, 3]]]  # (ahead, behind) x 2 x group
+    assert masses.tolist() == [[[0.25, 0.0, 0.0]], [[0.75, 1.0, 1.0]]]
+    z = features / std  # standardised
+    torch.testing.assert_close(attended[0, 0, 0], z[0, 0, 0])  # the car ahead alone
+    torch.testing.assert_close(attended[1, 0, 0], z[0, 0, 1])  # the car behind alone
+    torch.testing.assert_close(attended[1, 0, 1], z[0, 1].mean(0))  # both behind, equal shares
+    torch.testing.assert_close(attended[1, 0, 2], torch.zeros(2))  # nothing usable: zeros
+    expected = 0.5 * (torch.outer(z[0, 1, 0], z[0, 1, 0]) + torch.outer(z[0, 1, 1], z[0, 1, 1]))
+    torch.testing.assert_close(second[1, 0, 1], expected)
+    torch.testing.assert_close(second[0, 0, 0], torch.outer(z[0, 0, 0], z[0, 0, 0]))
+
+
+def test_edge_relation_maps_read_each_side_exactly_and_mix_by_the_attention():
+    """Under the labelled attention the per-edge-relation fit reads the mirrored pair exactly
+    (as the per-agent relation does); the rollout's change under mixed attention is the mix of
+    each side's reading where an agent's edges lie on both sides."""
+    num_observed, steps = 8, 14
+    positions, valid, labels, roles = mirrored_pair_scenes(60, steps, num_observed, seed=1)
+    config = ModelConfig(
+        **ORACLE_REFIT, num_roles=2, highway_relation=True, attended_fit="edge_relations"
+    )
+    model = SmoothAttentionPredictor(config)
+    model.fit_normalisation(positions, valid, num_observed, roles)
+    model.refit_attended(positions, valid, num_observed, labels, roles)
+    test, test_valid, test_labels, test_roles = mirrored_pair_scenes(8, steps, num_observed, 2)
+    out = model.predict(test, test_valid, num_observed, test_labels, roles=test_roles)
+    truth = test[:, num_observed:, :2]
+    assert (out.rollout.mean[:, :, :2] - truth).norm(dim=-1).max() < 0.05
+    steps_in = model._prepare(test, test_valid, num_observed, test_labels, test_roles)
+    edges, mask = model._neighbour_features(steps_in)
+    first, second = torch.zeros_like(mask, dtype=torch.float), torch.zeros_like(mask).float()
+    first[..., 0], second[..., 1] = 1.0, 1.0  # one-hot on each agent's first or second edge
+    with torch.no_grad():
+        alone = [model._highway(steps_in, theta) for theta in (first, second)]
+        mixed = model._highway(steps_in, 0.3 * first + 0.7 * second)
+    both_sides = (edges[..., 0, 0] > 0) != (edges[..., 1, 0] > 0)  # (B, N)
+    assert both_sides.sum() >= 8
+    expected = 0.3 * alone[0] + 0.7 * alone[1]
+    torch.testing.assert_close(mixed[both_sides], expected[both_sides])
+    with pytest.raises(ValueError, match="edge_relations' needs highway_relation"):
+        ModelConfig(**ORACLE_REFIT, num_roles=2, attended_fit="edge_relations")
+
+
 def test_role_groups_pool_the_maps_of_roles_that_behave_alike():
     """Two cars of *different* roles in the mirrored pair: pooled in one group they share
     each relation's maps (4 maps instead of 6), fitted on both cars' scenes, and each relation
@@ -612,3 +667,26 @@ def test_role_attention_bias_moves_the_attention_to_a_role():
     torch.testing.assert_close(after[:, :, 1:], before[:, :, 1:])  # the others unchanged
     with pytest.raises(ValueError, match="role_attention_bias needs agent roles"):
         SmoothAttentionPredictor(ModelConfig(**REFIT, role_attention_bias=True))
+
+
+def test_role_bias_by_group_is_one_bias_for_every_pair_of_its_groups():
+    """Roles 0 and 1 in group 0: one bias (group 0 attends group 0) puts role 0's attention on
+    role 1 and role 1's on role 0, and leaves the group-1 agent's attention alone."""
+    positions, valid, _, _ = mirrored_pair_scenes(4, 10, 8, seed=6)
+    roles = torch.tensor([0, 1, 2]).expand(4, 3)
+    grouped = {**REFIT, "num_roles": 3, "role_attention_bias": True}
+    config = ModelConfig(**grouped, highway_role_groups="0,0,1", role_bias_by_group=True)
+    model = SmoothAttentionPredictor(config)
+    assert model.role_pair.shape == (2, 2)
+    before = model(positions, valid, 8, sample=False, roles=roles).attention
+    with torch.no_grad():
+        model.role_pair[0, 0] = 20.0
+    after = model(positions, valid, 8, sample=False, roles=roles).attention  # (B, T, N, N-1)
+    assert after[:, :, 0, 0].min() > 0.99  # agent 0 attends agent 1 (agent 0's edge 0)
+    assert after[:, :, 1, 0].min() > 0.99  # agent 1 attends agent 0 (agent 1's edge 0)
+    torch.testing.assert_close(after[:, :, 2], before[:, :, 2])
+    for missing in ({"highway_role_groups": ""}, {"role_attention_bias": False}):
+        with pytest.raises(ValueError, match="role_bias_by_group needs"):
+            ModelConfig(
+                **{**grouped, "highway_role_groups": "0,0,1", **missing}, role_bias_by_group=True
+            )

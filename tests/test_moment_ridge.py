@@ -58,6 +58,32 @@ def test_weighted_rows_are_scikit_learns_weighted_ridge_on_those_rows(alpha: flo
     np.testing.assert_allclose(intercept, ridge.intercept_ - scaler.mean_ @ coef, atol=1e-9)
 
 
+@pytest.mark.parametrize("alpha", [1e-3, 10.0])
+def test_sample_weights_scale_each_samples_rows_as_scikit_learns_sample_weight(alpha: float):
+    gen = np.random.default_rng(3)
+    samples, rows, features = 30, 3, 3
+    x = gen.normal(size=(samples, rows, features)) * np.array([2.0, 0.5, 1.0])
+    share = gen.dirichlet(np.ones(rows), size=samples)  # (K, R), rows of a sample sum to one
+    mass = gen.uniform(0.05, 1.0, size=samples)  # each sample's total weight
+    y = gen.normal(size=(samples, 2)) + x[:, 1] @ gen.normal(size=(features, 2))
+    mean = np.einsum("kr,krf->kf", share, x)
+    moment = np.einsum("kr,krf,krg->kfg", share, x, x)
+    groups = np.arange(samples) % 6
+    coef, intercept, _ = fit_moment_ridge(mean, moment, y, groups, (alpha,), folds=3, weights=mass)
+    flat_x, flat_w = x.reshape(-1, features), (mass[:, None] * share).reshape(-1)
+    flat_y = np.repeat(y, rows, axis=0)
+    scaler = StandardScaler().fit(flat_x, sample_weight=flat_w)
+    ridge = Ridge(alpha=alpha).fit(scaler.transform(flat_x), flat_y, sample_weight=flat_w)
+    np.testing.assert_allclose(coef, ridge.coef_.T / scaler.scale_[:, None], rtol=1e-7)
+    np.testing.assert_allclose(intercept, ridge.intercept_ - scaler.mean_ @ coef, atol=1e-9)
+    unit = fit_moment_ridge(mean, moment, y, groups, ALPHAS, 3, weights=np.ones(samples))
+    plain = fit_moment_ridge(mean, moment, y, groups, ALPHAS, 3)
+    np.testing.assert_array_equal(unit[0], plain[0])
+    assert unit[2] == plain[2]
+    with pytest.raises(ValueError, match="positive"):
+        fit_moment_ridge(mean, moment, y, groups, ALPHAS, 3, weights=np.zeros(samples))
+
+
 def test_one_group_cannot_be_cross_validated():
     x, y, _ = noisy_linear(10, 2, 1, seed=2)
     with pytest.raises(ValueError, match="two groups"):

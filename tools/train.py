@@ -64,6 +64,7 @@ MODEL_FLAGS = (
     "attended_fit",
     "highway_relation",
     "role_attention_bias",
+    "role_bias_by_group",
     "highway_role_groups",
     "neighbours",
     "neighbour_radius_m",
