@@ -6,7 +6,9 @@ future on each of its edges in turn, weighted by the attention: rows x_ij = (own
 weight theta_ij, the weights of an agent summing to one. Its normal equations need only each
 agent's attention-weighted mean E[x] and second moment E[x x^T] of its rows, so the fit runs on
 one sample per agent (N samples with F x F moments, instead of N (N-1) weighted rows), and the
-cross-validation's folds are sums of per-group statistics. With one row per sample
+cross-validation's folds are sums of per-group statistics. Under "edge_relations" an agent is
+one sample per relation (ahead, behind) whose rows weigh that relation's share of its attention
+(`weights`). With one row per sample
 (E[x x^T] = E[x] E[x]^T) it is scikit-learn's StandardScaler + Ridge (tested).
 """
 
