@@ -96,7 +96,9 @@ class HighwayMaps:
         if self.config.highway_attended:
             edges, mask = self._neighbour_features(steps)
             if self.config.attended_fit == "edge_relations":
-                change = self._edge_relation_changes(steps, theta, slots, features, usable)
+                change = self._edge_relation_changes(
+                    steps, theta, slots, features, usable, edges, mask
+                )
                 return rotate(change.permute(2, 0, 1, 3), rotation).permute(1, 2, 0, 3)
             if self.config.highway_relation:
                 slots = relation_slots(slots, theta, edges, mask)
@@ -146,17 +148,25 @@ class HighwayMaps:
         return change * self.anchor_std  # (B, N, horizon, 2)
 
     def _edge_relation_changes(
-        self, steps: _Steps, theta: Tensor, groups: Tensor, features: Tensor, usable: Tensor
+        self,
+        steps: _Steps,
+        theta: Tensor,
+        groups: Tensor,
+        features: Tensor,
+        usable: Tensor,
+        edges: Tensor,
+        mask: Tensor,
     ) -> Tensor:
         """The highway's velocity changes under attended_fit "edge_relations" (B, N, horizon,
         2), agent frame [m/step]: each relation's map reads the agent's own history and the
         attention-weighted mean of the edges in that relation, clamped to that map's range,
-        and the readings are mixed by the relation's share of the attention."""
-        edges, mask = self._neighbour_features(steps)
+        and the readings are mixed by the relation's share of the attention. groups (B, N):
+        each agent's map group; features, usable: its own history (`history_features`);
+        edges, mask: its edge features (`neighbour_features`)."""
         slots, masses, attended, _ = edge_relations(
             groups, theta, edges, mask, self.attended_mean, self.attended_std
         )
-        change = features.new_zeros(0)
+        parts = []
         for side in range(2):
             weight, bias = agent_maps(
                 self.highway_weight,
@@ -175,9 +185,8 @@ class HighwayMaps:
                 self.highway_low[slots[side]],
                 self.highway_high[slots[side]],
             )
-            part = masses[side][..., None, None] * reading
-            change = part if side == 0 else change + part
-        return change
+            parts.append(masses[side][..., None, None] * reading)
+        return parts[0] + parts[1]
 
     @torch.no_grad()
     def refit_attended(
