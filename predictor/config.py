@@ -188,8 +188,9 @@ class ModelConfig:
     # bias's gradient. Double Merge's colours attend each other: per role, the gradient at the
     # first refit pointed green's bias at brown six times more weakly than brown's at green
     # (docs/PREDICTOR.md), and after training brown attended green (weight 0.49-0.63) while
-    # green stayed on the distractors (0.02-0.14); one (main, main) bias reads both.
-    # Needs role_attention_bias and highway_role_groups.
+    # green stayed on the distractors (0.02-0.14); one (main, main) bias reads both. Off:
+    # measured, green's attention did not move (0.14-0.19; docs/PREDICTOR.md). Needs
+    # role_attention_bias and highway_role_groups.
     role_bias_by_group: bool = False
     # Which roles share the highway's maps: comma-separated group per role ("0,0,1": the first
     # two roles pool their maps); "" gives each role its own. Roles that drive alike but swap
