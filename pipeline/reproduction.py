@@ -164,7 +164,7 @@ def run_dir(
     out_dir: Path, spec: DataSpec, variant: str, seed: int, epochs: int, preset: str = "paper"
 ) -> Path:
     """runs/<stem>/<variant>/seed<k>_ep<E>_<digest of the model and training configs>."""
-    from predictor.config import config_key
+    from predictor.stored_config import config_key
 
     base = out_dir / "runs" / spec.stem / variant
     if variant in BASELINES:

@@ -13,11 +13,13 @@ Every experiment variant of the paper is configuration of one model (see `VARIAN
 `const_vel` is a baseline without training (`predictor.baselines`), not a variant.
 For `average` and `correct` the attention has no parameters, so a smoothness term would be a
 constant without gradient; it is fixed to 0.
+
+How configs are stored in checkpoints and run directories, and read back: predictor.stored_config.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 ATTENTION_MODES = ("learned", "uniform", "oracle")
@@ -517,7 +519,7 @@ def make_configs(
     train_overrides = {**preset_train, **train_overrides}
     if "attention_mode" in model_overrides:
         raise ValueError("attention_mode is fixed by the variant")
-    model = _build(ModelConfig, {**model_overrides, "attention_mode": spec.attention_mode})
+    model = build_config(ModelConfig, {**model_overrides, "attention_mode": spec.attention_mode})
     if not spec.smooth and train_overrides.get("beta2", 0.0):
         raise ValueError(f"variant {variant!r} has no smoothness term; beta2 must be 0")
     if "sequence_loss" in train_overrides:
@@ -525,10 +527,10 @@ def make_configs(
     train_values = {**train_overrides, "variant": variant, "sequence_loss": spec.sequence_loss}
     if not spec.smooth:
         train_values["beta2"] = 0.0
-    return model, _build(TrainConfig, train_values)
+    return model, build_config(TrainConfig, train_values)
 
 
-def _build(cls: type, values: dict[str, Any], complete: bool = False) -> Any:
+def build_config(cls: type, values: dict[str, Any], complete: bool = False) -> Any:
     """cls(**values); unknown keys are an error, and so are missing ones when `complete`."""
     names = {f.name for f in fields(cls)}
     unknown = sorted(set(values) - names)
@@ -540,72 +542,3 @@ def _build(cls: type, values: dict[str, Any], complete: bool = False) -> Any:
             f"{cls.__name__} lacks field(s) {', '.join(missing)} (written by an older version?)"
         )
     return cls(**values)
-
-
-def config_to_dict(config: ModelConfig | TrainConfig) -> dict[str, Any]:
-    """Plain-type dict of a config (for JSON and weights-only checkpoints)."""
-    return asdict(config)
-
-
-# Fields added after stored configs became strict (checkpoints, run directories), each with the
-# value that does what the code did before the field existed (the paper's behaviour: every one
-# was added as a switch that is off by default). A stored config lacking one of them takes this
-# value, never a current default that may differ; lacking any other field is still an error.
-ADDED_MODEL_FIELDS: dict[str, Any] = {
-    "frame": "scene",
-    "standardise": False,
-    "edge_velocity": False,
-    "offset_scale": "step",
-    "detach_covariance": False,
-    "rollout_prior": "previous",
-    "num_roles": 0,
-    "role_input": True,
-    "acceleration_input": False,
-    "attention_gain": 1.0,
-    "highway_steps": 0,
-    "highway_horizon": 45,
-    "highway_attended": False,
-    "attended_refit": False,
-    "attended_fit": "mean",
-    "highway_relation": False,
-    "role_attention_bias": False,
-    "role_bias_by_group": False,
-    "highway_role_groups": "",
-    "neighbours": "all",
-    "neighbour_radius_m": 50.0,
-    "neighbour_k": 16,
-}
-ADDED_TRAIN_FIELDS: dict[str, Any] = {
-    "lr_schedule": "constant",
-    "lr_final_ratio": 0.01,
-    "rollout_feed": "sample",
-    "mean_loss": "nll",
-    "one_step_needs_previous": False,
-    "weight_decay": 0.0,
-    "observed_jitter": 0,
-    "main_agent_weight": 1.0,
-    "one_step_weight": 1.0,
-    "bucket_batches": False,  # the batches of every split padded to its largest window
-}
-
-
-def config_key(config: ModelConfig | TrainConfig) -> dict[str, Any]:
-    """`config_to_dict` without the added fields (`ADDED_MODEL_FIELDS`, `ADDED_TRAIN_FIELDS`)
-    that hold their former values: what identifies a run's configuration (cache keys), so a
-    later version that adds a switch leaves the keys of the runs that do not use it unchanged."""
-    added = ADDED_MODEL_FIELDS if isinstance(config, ModelConfig) else ADDED_TRAIN_FIELDS
-    values = config_to_dict(config)
-    return {k: v for k, v in values.items() if k not in added or added[k] != v}
-
-
-def model_config_from_dict(values: dict[str, Any]) -> ModelConfig:
-    """Rebuild a ModelConfig written by `config_to_dict`; unknown or missing keys are an error
-    (a stored model must not silently pick up a newer default), except the fields of
-    `ADDED_MODEL_FIELDS`, which older versions did not write."""
-    return _build(ModelConfig, {**ADDED_MODEL_FIELDS, **values}, complete=True)
-
-
-def train_config_from_dict(values: dict[str, Any]) -> TrainConfig:
-    """Rebuild a TrainConfig written by `config_to_dict`; unknown or missing keys are an error,
-    except the fields of `ADDED_TRAIN_FIELDS`."""
-    return _build(TrainConfig, {**ADDED_TRAIN_FIELDS, **values}, complete=True)

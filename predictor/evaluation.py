@@ -29,7 +29,7 @@ from predictor.baselines import (
     RidgeConfig,
     constant_velocity,
 )
-from predictor.config import ModelConfig, model_config_from_dict
+from predictor.config import ModelConfig
 from predictor.data import Batch, TrajectoryDataset
 from predictor.diagnostics import counterfactual_shift, error_curves, one_step_errors
 from predictor.format import DatasetMeta, TrajectorySet
@@ -42,6 +42,7 @@ from predictor.metrics import (
 from predictor.model import SmoothAttentionPredictor
 from predictor.outputs import expand_attention
 from predictor.predictions import Predictions
+from predictor.stored_config import model_config_from_dict
 
 CHECKPOINT_FORMAT = "smooth-attention-checkpoint"
 CHECKPOINT_VERSION = 1

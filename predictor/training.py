@@ -34,16 +34,7 @@ import torch
 from tqdm import tqdm
 
 from predictor import __version__
-from predictor.config import (
-    ADDED_MODEL_FIELDS,
-    ADDED_TRAIN_FIELDS,
-    ModelConfig,
-    TrainConfig,
-    config_to_dict,
-    model_config_from_dict,
-    resolve_roles,
-    train_config_from_dict,
-)
+from predictor.config import ModelConfig, TrainConfig, resolve_roles
 from predictor.data import Batch, TrajectoryDataset, make_loader
 from predictor.evaluation import (
     CHECKPOINT_FORMAT,
@@ -64,6 +55,13 @@ from predictor.run_files import (
     claim_out_dir,
     remove_failed_start,
     writing,
+)
+from predictor.stored_config import (
+    ADDED_MODEL_FIELDS,
+    ADDED_TRAIN_FIELDS,
+    config_to_dict,
+    model_config_from_dict,
+    train_config_from_dict,
 )
 
 RESUME_MAY_CHANGE = ("epochs", "threads", "eval_every")  # TrainConfig fields; nothing else may

@@ -290,8 +290,8 @@ def test_checkpoint_of_an_older_version_loads_with_the_behaviour_it_was_trained_
 ):
     import torch
 
-    from predictor.config import ADDED_MODEL_FIELDS, ADDED_TRAIN_FIELDS
     from predictor.evaluation import load_model
+    from predictor.stored_config import ADDED_MODEL_FIELDS, ADDED_TRAIN_FIELDS
     from predictor.training import resume_configs
 
     checkpoint = torch.load(smoke["run"] / "best.pt", weights_only=True)
