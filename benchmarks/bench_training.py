@@ -1,17 +1,19 @@
 """Training throughput of the smooth-attention predictor on CPU (synthetic data, default shape).
 
 Usage: python benchmarks/bench_training.py [--threads 1] [--repeats 3] [--variant ours]
-[--presets paper,agent]
+[--presets paper,agent,agent_own_highway]
 (`--threads 1,2` compares thread counts; only meaningful on an otherwise idle machine: with
 the other core busy, 2 threads oversubscribe and one epoch took 146 s instead of 2.2 s.)
 
 Times whole training epochs (optimiser steps included) and the per-epoch validation pass on
 synthetic scenes of the default Double Merge shape (52 train + 13 val scenes, T = 60 steps,
 15 observed, 22 agents = 462 edges per scene, the preset's batch size: 8 for `paper`, 4 for
-`agent`), for each preset and torch thread count. Reports, per preset and thread count, the
+`agent`), for each preset (and `agent_own_highway`, the agent preset without its attended
+highway) and torch thread count. Reports, per preset and thread count, the
 median over repeats of:
 
-- epoch_s / val_s: one training epoch / one validation pass (fed-back means, no_grad) [s]
+- epoch_s / val_s: one training epoch (with the attended highway's refit at its start where
+  the preset has one) / one validation pass (fed-back means, no_grad) [s]
   (wall clock; epoch_cpu_s is the process CPU time of the epoch, less sensitive to other load)
 - full_run_s: projected run of the preset's length (paper 200, agent 90 epochs),
   epochs x (epoch_s + val_s) [s] (target: < 600 s)
@@ -43,6 +45,20 @@ from predictor.model import SmoothAttentionPredictor  # noqa: E402
 from predictor.training import make_optimizer, train_step  # noqa: E402
 
 ROLE_NAMES = ("main_green", "main_brown", "distractor")  # the scenarios' roles (agent preset)
+# Settings timed besides the presets: the agent preset before its attended highway (own-history
+# highway only; the preset until 2026-11-26), to show what the attended highway costs.
+SETTINGS: dict[str, tuple[str, dict]] = {
+    "agent_own_highway": (
+        "agent",
+        {
+            "highway_attended": False,
+            "attended_refit": False,
+            "highway_relation": False,
+            "attended_fit": "mean",
+            "role_attention_bias": False,
+        },
+    ),
+}
 
 
 def synthetic_batch(scenes: int, steps: int, agents: int, seed: int) -> Batch:
@@ -100,10 +116,13 @@ def matmul_gflops(repeats: int = 20, size: int = 1024) -> float:
 
 
 def time_epoch(
-    model, optimizer, batches: list[Batch], observed: int, train_cfg
+    model, optimizer, train: Batch, batches: list[Batch], observed: int, train_cfg
 ) -> tuple[float, float]:
-    """(wall, process CPU) seconds of one training epoch."""
+    """(wall, process CPU) seconds of one training epoch, with the closed-form refit of the
+    attended highway at its start where the model has one (as `predictor.training` does)."""
     start, cpu = time.perf_counter(), time.process_time()
+    if model.config.attended_refit:
+        model.refit_attended(train.positions, train.valid, observed, train.attention, train.roles)
     for batch in batches:
         train_step(model, optimizer, batch, observed, train_cfg)
     return time.perf_counter() - start, time.process_time() - cpu
@@ -111,7 +130,8 @@ def time_epoch(
 
 def bench_threads(preset: str, threads: int, args) -> dict:
     torch.set_num_threads(threads)
-    model_cfg, train_cfg = make_configs(args.variant, preset=preset)
+    base, overrides = SETTINGS.get(preset, (preset, {}))
+    model_cfg, train_cfg = make_configs(args.variant, overrides, preset=base)
     model_cfg = resolve_roles(model_cfg, ROLE_NAMES)
     torch.manual_seed(0)
     model = SmoothAttentionPredictor(model_cfg)
@@ -129,7 +149,7 @@ def bench_threads(preset: str, threads: int, args) -> dict:
     epochs, cpus, vals, rates = [], [], [], []
     for _ in range(args.repeats):
         rates.append(matmul_gflops())
-        wall, cpu = time_epoch(model, optimizer, batches, args.observed, train_cfg)
+        wall, cpu = time_epoch(model, optimizer, train, batches, args.observed, train_cfg)
         epochs.append(wall)
         cpus.append(cpu)
         start = time.perf_counter()
@@ -166,7 +186,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="timed epochs per thread count")
     parser.add_argument("--variant", default="ours", help="model variant")
     parser.add_argument(
-        "--presets", default="paper,agent", help="comma-separated presets (default paper,agent)"
+        "--presets",
+        default="paper,agent,agent_own_highway",
+        help="comma-separated presets or SETTINGS (default paper,agent,agent_own_highway)",
     )
     parser.add_argument("--scenes", type=int, default=52, help="training scenes")
     parser.add_argument("--val-scenes", type=int, default=13, help="validation scenes")

@@ -149,8 +149,9 @@ class ModelConfig:
     # last observed step on the training scenes. Within an epoch the maps are fixed and the
     # attention gets the gradient of the best linear read-out of what it attends to; learnt
     # from zero, the map read the uniform average (Double Merge v1, Correct: main-car test ADE
-    # 1.714 m learnt, 1.494 m refitted; ridge on the labelled car 1.369 m). Off: measured
-    # seeds and trade-offs in docs/PREDICTOR.md. Needs highway_attended.
+    # 1.714 m learnt, 1.494 m refitted; ridge on the labelled car 1.369 m). On in the agent
+    # preset (with highway_relation and attended_fit "edge_relations"; measured seeds in
+    # docs/PREDICTOR.md). Needs highway_attended.
     attended_refit: bool = False
     # What attended_refit regresses on: "mean", the attention-weighted mean sum_j theta_ij z_ij
     # of the edge features; "edges", each edge (own_i, z_ij) as a row of its own with weight
@@ -167,7 +168,8 @@ class ModelConfig:
     # highway_relation) instead of one relation per agent from the attention-weighted mean
     # position, which under spread attention is the distractors' side, not the attended car's;
     # the rollout mixes the two relations' readings by their share of the attention
-    # (predictor.highway.edge_relations). Needs highway_relation. Needs attended_refit.
+    # (predictor.highway.edge_relations); the agent preset's. Needs highway_relation. Needs
+    # attended_refit.
     attended_fit: str = "mean"
     # The highway's maps (own and attended) chosen per role *and* per relation to the attended
     # agents: whether they lie ahead of the agent or behind it (the sign of sum_j theta_ij x_ij,
@@ -175,15 +177,18 @@ class ModelConfig:
     # step), twice the maps. A follower reads its leader differently from how a leader reads its
     # follower, and one linear map per role cannot do both where a role is ahead in one case
     # and behind in the other (Double Merge's colours): ridge with the labelled car, test ADE
-    # of the main cars 1.369 m with one map per colour, 0.822 m per colour and relation. Off:
-    # with learned attention it was worse (docs/PREDICTOR.md). Needs attended_refit.
+    # of the main cars 1.369 m with one map per colour, 0.822 m per colour and relation. On in
+    # the agent preset with attended_fit "edge_relations" (with the per-agent relation of the
+    # other fits, learned attention made it worse; docs/PREDICTOR.md). Needs attended_refit.
     highway_relation: bool = False
     # A learnt bias per pair of roles (attending, attended) added to the learned attention's
     # scores: "this kind of agent attends to that kind" is one parameter whose gradient sums
     # over every such pair in the data, instead of a pattern the edge LSTM's states must carry
     # (Double Merge v1, with highway_role_groups "0,0,1": attention accuracy 0.83, weight 0.71
-    # on the other main car; docs/PREDICTOR.md). Needs num_roles; ignored by fixed attention.
-    # Off: it finds the other main car in about half the seeds, and loses Halting Car's leader.
+    # on the other main car; docs/PREDICTOR.md). Ignored without roles (num_roles 0: one kind
+    # of agent, whose one bias the softmax would cancel) and by fixed attention.
+    # On in the agent preset (with attended_fit "edge_relations"; measured seeds in
+    # docs/PREDICTOR.md).
     role_attention_bias: bool = False
     # With highway_role_groups: the role_attention_bias per pair of role groups (attending,
     # attended) instead of roles, so roles that drive alike also attend alike and pool the
@@ -438,8 +443,9 @@ VARIANTS: dict[str, Variant] = {
 # agent-frame offsets, an anchored rollout, agent roles as inputs, and a longer cosine schedule
 # with smaller batches (more optimiser steps: 52 training scenes at batch 8 are only 7 steps
 # per epoch), the main agents' loss terms weighted 5x, a cross-fitted linear highway for the
-# agent's own motion and attention scores times 10. docs/PREDICTOR.md has the measurement
-# behind each switch.
+# agent's own motion and for the attended agents (refitted every epoch, one map per relation,
+# each edge read by its own relation's map), a learned attention bias per pair of roles and
+# attention scores times 10. docs/PREDICTOR.md has the measurement behind each switch.
 PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     "paper": ({}, {}),
     "agent": (
@@ -452,6 +458,11 @@ PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
             "rollout_prior": "anchored",
             "num_roles": ROLES_FROM_DATA,
             "highway_steps": 12,
+            "highway_attended": True,
+            "attended_refit": True,
+            "highway_relation": True,
+            "attended_fit": "edge_relations",
+            "role_attention_bias": True,
             "attention_gain": 10.0,
         },
         {

@@ -105,8 +105,6 @@ class SmoothAttentionPredictor(HighwayMaps, nn.Module):
         super().__init__()
         if config.num_roles < 0:
             raise ValueError("num_roles=-1 (from the data) must be resolved first (resolve_roles)")
-        if config.role_attention_bias and config.num_roles == 0:
-            raise ValueError("ModelConfig.role_attention_bias needs agent roles (num_roles)")
         groups = config.highway_role_groups
         if groups and len(groups.split(",")) != config.num_roles:
             raise ValueError(

@@ -665,8 +665,10 @@ def test_role_attention_bias_moves_the_attention_to_a_role():
     after = model(positions, valid, 8, sample=False, roles=roles).attention  # (B, T, N, N-1)
     assert after[:, :, 0, 0].min() > 0.99  # agent 0 (role 0) attends agent 1 (its edge 0)
     torch.testing.assert_close(after[:, :, 1:], before[:, :, 1:])  # the others unchanged
-    with pytest.raises(ValueError, match="role_attention_bias needs agent roles"):
-        SmoothAttentionPredictor(ModelConfig(**REFIT, role_attention_bias=True))
+    # without roles every agent is of one kind, and one bias for every pair would shift all
+    # scores alike (the softmax ignores it): the model then has none
+    no_roles = SmoothAttentionPredictor(ModelConfig(**REFIT, role_attention_bias=True))
+    assert no_roles.role_pair is None
 
 
 def test_role_bias_by_group_is_one_bias_for_every_pair_of_its_groups():
