@@ -68,18 +68,24 @@ def _group_statistics(
 ) -> tuple[np.ndarray, ...]:
     """Per group, weighted by the samples' weights w: sum of w (G,), of w E[x] (G, F), of w y
     (G, D), of w E[x x^T] (G, F, F) and of w E[x] y^T (G, F, D)."""
-    # the weighted group sums as one product with the (G, n) weighted indicator matrix: the
-    # same sums as np.add.at, ~10x faster at the refit's size (n ~ 2,300 samples, 80 x 90
-    # cross moments each)
-    n, features, outputs = len(group), mean.shape[1], target.shape[1]
-    member = np.zeros((count, n))
-    member[group, np.arange(n)] = weights
-    samples = member.sum(1)
-    sum_x = member @ mean
-    sum_y = member @ target
-    sum_xx = (member @ moment.reshape(n, -1)).reshape(count, *moment.shape[1:])
-    cross = (mean[:, :, None] * target[:, None, :]).reshape(n, -1)
-    sum_xy = (member @ cross).reshape(count, features, outputs)
+    # sorted by group and summed per run of equal groups (np.add.reduceat): the same sums as
+    # np.add.at, whose unbuffered scatter was most of the attended highway's refit (52 scenes,
+    # ~2,300 samples of 80 x 90 cross moments: refit 2.10 s with it, 1.46 s this way, 1.24 s
+    # as a product with a (groups x samples) indicator matrix, whose memory grows with both).
+    # Every group in [0, count) has samples (the caller's np.unique inverse): a run is a group.
+    order = np.argsort(group, kind="stable")
+    sorted_group = group[order]
+    starts = np.flatnonzero(np.r_[True, sorted_group[1:] != sorted_group[:-1]])
+    if len(starts) != count:
+        raise ValueError("_group_statistics: every group needs at least one sample")
+    w = weights[order]
+    weighted_x = w[:, None] * mean[order]  # (n, F)
+    samples = np.add.reduceat(w, starts)
+    sum_x = np.add.reduceat(weighted_x, starts, axis=0)
+    sum_y = np.add.reduceat(w[:, None] * target[order], starts, axis=0)
+    sum_xx = np.add.reduceat(w[:, None, None] * moment[order], starts, axis=0)
+    cross = weighted_x[:, :, None] * target[order][:, None, :]  # (n, F, D)
+    sum_xy = np.add.reduceat(cross, starts, axis=0)
     return samples, sum_x, sum_y, sum_xx, sum_xy
 
 
