@@ -21,7 +21,8 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, RandomSampler, Sampler, SequentialSampler
 
-from predictor.format import DatasetMeta, FormatError, TrajectorySet, read_meta, read_split
+from predictor.format import DatasetMeta, FormatError, TrajectorySet
+from predictor.format_reader import read_meta, read_split
 
 # agent slots a dataset has at least: a split of one slot (e.g. ETH/UCY windows of one
 # pedestrian) gets an invalid, non-focal second slot, which changes no prediction and no metric

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from predictor.baselines import RidgeBaseline, RidgeConfig
-from predictor.format import read_meta, read_split
+from predictor.format_reader import read_meta, read_split
 from predictor.metrics import prediction_mask
 
 MODES = ("none", "labelled", "random")  # RidgeConfig.neighbours of own, labelled, random

@@ -33,7 +33,7 @@ import h5py
 import numpy as np
 
 from predictor.format import (
-    _FIELDS,
+    FIELDS,
     FORMAT_NAME,
     INDEX_SCHEMA_VERSION,
     NEUTRAL_VALUES,
@@ -180,7 +180,7 @@ class ShardedWriter:
             raise FormatError(
                 f"split {split!r} misses a shard before position {parts[-1].position}"
             )
-        if len({tuple(s.shapes[n][1:] for n in _FIELDS) for s in parts}) > 1:
+        if len({tuple(s.shapes[n][1:] for n in FIELDS) for s in parts}) > 1:
             raise FormatError(f"the shards of split {split!r} differ in T, N or channels")
         return parts
 
@@ -196,7 +196,7 @@ class ShardedWriter:
             return
         total = sum(s.count for s in parts)
         group.attrs["count"] = np.int64(total)
-        for name, (dtype, _) in _FIELDS.items():
+        for name, (dtype, _) in FIELDS.items():
             if name in NEUTRAL_VALUES and name not in meta.recorded:
                 continue
             sources = [(shard_name(split, s.position), s.count) for s in parts]

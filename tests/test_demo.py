@@ -10,7 +10,7 @@ import numpy as np
 from conftest import REPO_ROOT, tool_env
 
 from predictor.baselines import constant_velocity
-from predictor.format import read_meta, read_split
+from predictor.format_reader import read_meta, read_split
 from predictor.predictions import load_predictions
 
 

@@ -27,12 +27,9 @@ from predictor.format import (
     DatasetMeta,
     FormatError,
     TrajectorySet,
-    read_dataset,
-    read_meta,
-    read_split,
-    summarize,
     write_dataset,
 )
+from predictor.format_reader import read_dataset, read_meta, read_split, summarize
 
 
 def _one_line(err: pytest.ExceptionInfo) -> str:

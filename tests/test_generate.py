@@ -23,7 +23,8 @@ from conftest import load_tool
 
 from pipeline import episode_runner, generation
 from pipeline.generation import GenerateConfig, default_output, generate_dataset, plan
-from predictor.format import OPTIONAL_FIELDS, read_dataset, read_meta, read_split
+from predictor.format import OPTIONAL_FIELDS
+from predictor.format_reader import read_dataset, read_meta, read_split
 from scenarios import SCENARIOS
 from scenarios.batched_rollout import rollout_batch
 from scenarios.rollout import rollout

@@ -17,7 +17,8 @@ from pipeline.importers.interaction import InteractionConfig, import_interaction
 from predictor.config import make_configs
 from predictor.data import TrajectoryDataset
 from predictor.evaluation import evaluate_baseline, evaluate_run
-from predictor.format import SPLITS, read_dataset
+from predictor.format import SPLITS
+from predictor.format_reader import read_dataset
 from predictor.training import train
 
 TOOL = REPO_ROOT / "tools" / "import_data.py"

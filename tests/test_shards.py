@@ -15,17 +15,8 @@ import numpy as np
 import pytest
 from conftest import assert_sets_equal, make_meta, make_trajectory_set
 
-from predictor.format import (
-    SPLITS,
-    FormatError,
-    TrajectorySet,
-    read_dataset,
-    read_meta,
-    read_split,
-    shard_files,
-    summarize,
-    write_dataset,
-)
+from predictor.format import SPLITS, FormatError, TrajectorySet, write_dataset
+from predictor.format_reader import read_dataset, read_meta, read_split, shard_files, summarize
 from predictor.shards import INDEX_NAME, ShardedWriter, shard_name
 
 COUNTS = {"train": 7, "val": 0, "test": 3}  # an empty split, and sizes 3 does not divide

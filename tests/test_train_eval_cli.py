@@ -424,7 +424,7 @@ def test_train_interrupted_in_the_first_epoch_keeps_nothing(smoke, tmp_path, cap
 
 def test_evaluation_library_matches_the_tool_and_an_independent_ade(smoke, tmp_path):
     from predictor.evaluation import evaluate_baseline, evaluate_run
-    from predictor.format import read_split
+    from predictor.format_reader import read_split
     from predictor.predictions import load_predictions
 
     evaluation = evaluate_run(smoke["run"], smoke["data"])

@@ -31,7 +31,8 @@ from pipeline.cli import ArgumentParser, fail, run_main
 from pipeline.importers.common import ImportDataError
 from pipeline.importers.eth_ucy import SCENES, EthUcyConfig, import_eth_ucy
 from pipeline.importers.interaction import InteractionConfig, import_interaction
-from predictor.format import FormatError, summarize
+from predictor.format import FormatError
+from predictor.format_reader import summarize
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -16,7 +16,8 @@ from __future__ import annotations
 
 from pipeline.cli import ArgumentParser, fail, require_file, run_main
 from predictor.baselines import GROUPINGS
-from predictor.format import FormatError, read_meta, summarize
+from predictor.format import FormatError
+from predictor.format_reader import read_meta, summarize
 from predictor.interaction import format_gain_table, interaction_gain
 
 

@@ -16,7 +16,8 @@ from __future__ import annotations
 import argparse
 
 from pipeline.cli import ArgumentParser, check_output, fail, require_file, run_main, writing
-from predictor.format import SPLITS, FormatError, read_meta, read_split
+from predictor.format import SPLITS, FormatError
+from predictor.format_reader import read_meta, read_split
 from predictor.plots import (
     MAX_DPI,
     MAX_SAMPLES_PER_CASE,

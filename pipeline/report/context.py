@@ -8,7 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline.report.records import CASES, CaseNames
-from predictor.format import SPLITS, read_meta, read_split
+from predictor.format import SPLITS
+from predictor.format_reader import read_meta, read_split
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from pipeline.report import figures, markdown
 from pipeline.report.context import DatasetInfo, MachineInfo, dataset_info, machine_info
 from pipeline.report.records import ClaimRow, Results, RunRecord
 from pipeline.report.statistics import STATISTICS, analyse, claims
-from predictor.format import read_meta, read_split
+from predictor.format_reader import read_meta, read_split
 from predictor.plots import plot_samples
 from predictor.predictions import load_predictions
 
