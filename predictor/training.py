@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from tqdm import tqdm
 
@@ -47,6 +46,7 @@ from predictor.format import DatasetMeta
 from predictor.losses import LossWeights, compute_loss
 from predictor.model import SmoothAttentionPredictor
 from predictor.predictions import Predictions
+from predictor.random_state import rng_state, seed_everything, set_rng_state
 from predictor.run_files import (
     RunError,
     atomic_save,
@@ -162,50 +162,6 @@ def validation_scores(
 def selection_score(val: dict[str, float | None]) -> float | None:
     """The number best.pt minimises: main-agent ADE (all-agent ADE if no main agent counts)."""
     return val["ade_main"] if val["ade_main"] is not None else val["ade_all"]
-
-
-# --------------------------------------------------------------------------- random states
-def rng_state(loader_generator: torch.Generator) -> dict:
-    """torch, numpy, python and loader RNG states as weights-only-loadable plain types."""
-    np_state = np.random.get_state()
-    py_state = random.getstate()
-    return {
-        "torch": torch.get_rng_state(),
-        "loader": loader_generator.get_state(),
-        "numpy": {
-            "name": str(np_state[0]),
-            "keys": torch.from_numpy(np.asarray(np_state[1], dtype=np.int64)),
-            "pos": int(np_state[2]),
-            "has_gauss": int(np_state[3]),
-            "cached_gaussian": float(np_state[4]),
-        },
-        "python": [py_state[0], list(py_state[1]), py_state[2]],
-    }
-
-
-def set_rng_state(state: dict, loader_generator: torch.Generator) -> None:
-    """Restore what `rng_state` saved."""
-    torch.set_rng_state(state["torch"])
-    loader_generator.set_state(state["loader"])
-    numpy = state["numpy"]
-    np.random.set_state(
-        (
-            numpy["name"],
-            numpy["keys"].numpy().astype(np.uint32),
-            numpy["pos"],
-            numpy["has_gauss"],
-            numpy["cached_gaussian"],
-        )
-    )
-    version, internal, gauss = state["python"]
-    random.setstate((version, tuple(internal), gauss))
-
-
-def seed_everything(seed: int) -> None:
-    """Seed torch, numpy's and python's global generators."""
-    torch.manual_seed(seed)
-    np.random.seed(seed % 2**32)
-    random.seed(seed)
 
 
 def check_labels(model_cfg: ModelConfig, meta: DatasetMeta, data_path: str | os.PathLike) -> None:
