@@ -181,6 +181,13 @@ class ModelConfig:
     # the agent preset with attended_fit "edge_relations" (with the per-agent relation of the
     # other fits, learned attention made it worse; docs/PREDICTOR.md). Needs attended_refit.
     highway_relation: bool = False
+    # Under attended_fit "edge_relations", the edges are also split by the attended agent's
+    # role group: each (group, attended group, relation) has maps of its own, fitted on those
+    # edges alone, as heterogeneous-graph models keep one encoder per edge type. Without it the
+    # map that reads the other main car is fitted on the attention-weighted mix of it and the
+    # distractors on the same side, whose readings carry nothing and dilute the map. Needs
+    # attended_fit "edge_relations"; one kind (as off) without roles.
+    highway_head_groups: bool = False
     # A learnt bias per pair of roles (attending, attended) added to the learned attention's
     # scores: "this kind of agent attends to that kind" is one parameter whose gradient sums
     # over every such pair in the data, instead of a pattern the edge LSTM's states must carry
@@ -190,6 +197,14 @@ class ModelConfig:
     # On in the agent preset (with attended_fit "edge_relations"; measured seeds in
     # docs/PREDICTOR.md).
     role_attention_bias: bool = False
+    # Learned attention logits plus -log(number of the attending agent's present neighbours
+    # with the attended agent's role): each role among the neighbours starts with the same
+    # total weight, shared by its agents, not each agent with 1/(N-1). With one other main car
+    # among 20 distractors, uniform scores put 1/2 on the main car instead of 1/21, so the
+    # refitted attended maps read it from the first epoch; the scores can still learn to leave
+    # it. A fixed prior over kinds of neighbour, not a parameter. Ignored without roles and by
+    # fixed attention.
+    role_balanced_attention: bool = False
     # With highway_role_groups: the role_attention_bias per pair of role groups (attending,
     # attended) instead of roles, so roles that drive alike also attend alike and pool the
     # bias's gradient. Double Merge's colours attend each other: per role, the gradient at the
@@ -257,6 +272,8 @@ class ModelConfig:
             raise ValueError(f"ModelConfig.attended_fit {self.attended_fit!r} needs attended_refit")
         if self.attended_fit == "edge_relations" and not self.highway_relation:
             raise ValueError("ModelConfig.attended_fit 'edge_relations' needs highway_relation")
+        if self.highway_head_groups and self.attended_fit != "edge_relations":
+            raise ValueError("ModelConfig.highway_head_groups needs attended_fit 'edge_relations'")
         if self.highway_relation and not self.attended_refit:
             raise ValueError("ModelConfig.highway_relation needs attended_refit")
         if self.role_bias_by_group and not (self.role_attention_bias and self.highway_role_groups):
@@ -523,6 +540,7 @@ def make_configs(
             "attended_refit": False,
             "attended_fit": "mean",
             "highway_relation": False,
+            "highway_head_groups": False,
         }
         preset_model = {**preset_model, "rollout_prior": "previous", **no_highway}
         model_overrides = {**(model_overrides or {}), **no_highway}

@@ -168,3 +168,19 @@ def segment_uniform(mask: Tensor, graph: Graph, dtype: torch.dtype = torch.float
     weights = mask.to(dtype)  # (S, E)
     count = graph.sum_by_tail(weights)  # (S, B*N)
     return weights / count.index_select(1, graph.tail).clamp(min=1.0)
+
+
+def role_balance(roles: Tensor, mask: Tensor, graph: Graph, num_roles: int) -> Tensor:
+    """-log(number of the tail's unmasked edges whose head has this edge's head role), (S, E).
+
+    Added to attention logits it gives every role among an agent's neighbours the same total
+    prior weight, shared by that role's agents, instead of every agent the same weight: with
+    one other main car among 20 distractors, equal logits put 1/2 on the main car, not 1/21.
+    roles (B, N) int64 in [0, num_roles); mask (S, E) bool; masked edges get 0.
+    """
+    head_role = roles.flatten().index_select(0, graph.head)  # (E,)
+    onehot = torch.nn.functional.one_hot(head_role, num_roles).to(torch.float32)  # (E, R)
+    per_edge = mask.to(torch.float32).unsqueeze(-1) * onehot  # (S, E, R)
+    counts = graph.sum_by_tail(per_edge).index_select(1, graph.tail)  # (S, E, R)
+    same = counts.gather(-1, head_role.view(1, -1, 1).expand(mask.shape[0], -1, 1)).squeeze(-1)
+    return -torch.log(same.clamp(min=1.0)).masked_fill(~mask, 0.0)

@@ -302,28 +302,46 @@ def relation_slots(roles: Tensor, theta: Tensor, features: Tensor, mask: Tensor)
 
 
 def edge_relations(
-    groups: Tensor, theta: Tensor, features: Tensor, mask: Tensor, mean: Tensor, std: Tensor
-) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    groups: Tensor,
+    theta: Tensor,
+    features: Tensor,
+    mask: Tensor,
+    mean: Tensor,
+    std: Tensor,
+    kinds: Tensor | None = None,
+    num_kinds: int = 1,
+    second_moment: bool = True,
+) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:
     """The attention split by each edge's own relation (`ModelConfig.attended_fit`
     "edge_relations"): for the agents ahead of agent i (x_ij > 0, `neighbour_features`' first
-    channel) and those behind it, in that order, the map each reads (2, B, N) (2 x group + 0
-    ahead, + 1 behind), its share of i's attention over the usable edges (2, B, N) (all of it
-    behind where i has none), and the share-weighted mean (2, B, N, F) and second moment
-    (2, B, N, F, F) of their standardised edge features z_ij. groups (B, N), theta and mask
-    (B, N, N-1), features (B, N, N-1, F), mean and std (F,)."""
+    channel) and those behind it, in that order, and with `kinds` (B, N, N-1) in [0, num_kinds)
+    (`ModelConfig.highway_head_groups`: the attended agent's role group) per kind, kind-major,
+    the map each of the 2K parts reads (2K, B, N) (2K x group + 2 x kind + 0 ahead, + 1 behind),
+    its share of i's attention over the usable edges (2K, B, N) (all of it on kind 0 behind
+    where i has none), and the share-weighted mean (2K, B, N, F) and second moment
+    (2K, B, N, F, F; None unless second_moment) of their standardised edge features z_ij.
+    groups (B, N), theta and mask (B, N, N-1), features (B, N, N-1, F), mean and std (F,)."""
     standard = torch.where(mask.unsqueeze(-1), (features - mean) / std, 0.0)
     used = torch.where(mask, theta, 0.0)
     total = used.sum(-1, keepdim=True)  # (B, N, 1)
     share = used / total.clamp(min=1e-12)
     ahead = mask & (features[..., 0] > 0)
-    sides = torch.stack([ahead, mask & ~ahead])  # (2, B, N, N-1)
-    weight = torch.where(sides, share, 0.0)  # (2, B, N, N-1)
-    ahead_mass, behind_mass = weight.sum(-1)  # (B, N) each
-    masses = torch.stack([ahead_mass, torch.where(total.squeeze(-1) > 0, behind_mass, 1.0)])
+    parts = []
+    for kind in range(num_kinds):
+        of_kind = mask if kinds is None else mask & (kinds == kind)
+        parts += [of_kind & ahead, of_kind & ~ahead]
+    weight = torch.where(torch.stack(parts), share, 0.0)  # (2K, B, N, N-1)
+    masses = weight.sum(-1)  # (2K, B, N)
+    fallback = torch.where(total.squeeze(-1) > 0, masses[1], 1.0)  # (B, N)
+    masses = torch.cat([masses[:1], fallback.unsqueeze(0), masses[2:]])
     scale = masses.clamp(min=1e-12).unsqueeze(-1)
     attended = torch.einsum("sbne,bnef->sbnf", weight, standard) / scale
-    second = torch.einsum("sbne,bnef,bneg->sbnfg", weight, standard, standard) / scale[..., None]
-    slots = 2 * groups + torch.arange(2, device=groups.device).view(2, 1, 1)
+    second = None
+    if second_moment:
+        second = torch.einsum("sbne,bnef,bneg->sbnfg", weight, standard, standard)
+        second = second / scale[..., None]
+    count = 2 * num_kinds
+    slots = count * groups + torch.arange(count, device=groups.device).view(count, 1, 1)
     return slots, masses, attended, second
 
 

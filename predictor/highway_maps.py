@@ -49,8 +49,36 @@ class HighwayMaps:
 
     @property
     def num_maps(self) -> int:
-        """Highway maps: one per role (one without roles), twice that with highway_relation."""
-        return self.num_groups * (2 if self.config.highway_relation else 1)
+        """Highway maps: one per role group (one without roles), twice that with
+        highway_relation, and that per attended group with highway_head_groups."""
+        return self.num_groups * (2 if self.config.highway_relation else 1) * self.num_kinds
+
+    @property
+    def num_kinds(self) -> int:
+        """Kinds of edge read by maps of their own: the attended agent's role group with
+        highway_head_groups, else one."""
+        return self.num_groups if self.config.highway_head_groups else 1
+
+    def _edge_relations(
+        self, groups: Tensor, theta: Tensor, edges: Tensor, mask: Tensor, second: bool
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:
+        """`edge_relations` of a pass, split by the attended agent's group with
+        highway_head_groups."""
+        kinds = None
+        if self.num_kinds > 1:
+            _, head = edge_index(groups.shape[1], groups.device)
+            kinds = groups[:, head].view(*mask.shape)  # (B, N, N-1)
+        return edge_relations(
+            groups,
+            theta,
+            edges,
+            mask,
+            self.attended_mean,
+            self.attended_std,
+            kinds,
+            self.num_kinds,
+            second,
+        )
 
     @property
     def num_groups(self) -> int:
@@ -163,11 +191,9 @@ class HighwayMaps:
         and the readings are mixed by the relation's share of the attention. groups (B, N):
         each agent's map group; features, usable: its own history (`history_features`);
         edges, mask: its edge features (`neighbour_features`)."""
-        slots, masses, attended, _ = edge_relations(
-            groups, theta, edges, mask, self.attended_mean, self.attended_std
-        )
+        slots, masses, attended, _ = self._edge_relations(groups, theta, edges, mask, False)
         parts = []
-        for side in range(2):
+        for side in range(len(slots)):
             weight, bias = agent_maps(
                 self.highway_weight,
                 self.highway_bias,
@@ -186,7 +212,7 @@ class HighwayMaps:
                 self.highway_high[slots[side]],
             )
             parts.append(masses[side][..., None, None] * reading)
-        return parts[0] + parts[1]
+        return torch.stack(parts).sum(0)
 
     @torch.no_grad()
     def refit_attended(
@@ -263,8 +289,9 @@ class HighwayMaps:
         moment sum_j theta_ij z_ij z_ij^T (B, N, F_att, F_att) (an empty tensor unless
         `attended_fit` is "edges"), future offsets (B, N, T_pred, 2), which agents to fit on
         (B, N), each agent's map (B, N) and its weight (B, N) (ones). Under "edge_relations"
-        each agent is two samples, one per relation (B, 2N, ...), weighted by its share of the
-        attention (predictor.highway.edge_relations)."""
+        each agent is two samples, one per relation (B, 2N, ...; 2K per agent with
+        highway_head_groups' K kinds), weighted by its share of the attention
+        (predictor.highway.edge_relations)."""
         rotation, t_obs = steps.frame[1], steps.num_observed
         own, usable = history_features(
             steps.pos, steps.present, t_obs, rotation, self.config.highway_steps
@@ -272,16 +299,15 @@ class HighwayMaps:
         edges, mask = self._neighbour_features(steps)
         slots = self._groups_of(steps.role_index, usable)
         if self.config.attended_fit == "edge_relations":
-            slots, masses, attended, second = edge_relations(
-                slots, theta, edges, mask, self.attended_mean, self.attended_std
-            )
+            slots, masses, attended, second = self._edge_relations(slots, theta, edges, mask, True)
             offsets, complete = future_offsets(steps.pos, steps.present, t_obs, rotation)
             fitted = (usable & complete).unsqueeze(0) & (masses > MIN_RELATION_SHARE)
+            parts = len(slots)
             return (
-                torch.cat([own, own], 1),
+                torch.cat([own] * parts, 1),
                 torch.cat(list(attended), 1),
                 torch.cat(list(second), 1),
-                torch.cat([offsets, offsets], 1),
+                torch.cat([offsets] * parts, 1),
                 torch.cat(list(fitted), 1),
                 torch.cat(list(slots), 1),
                 torch.cat(list(masses), 1),
@@ -326,6 +352,9 @@ class HighwayMaps:
             edges, mask = self._neighbour_features(steps)
             if self.config.highway_relation:  # before any attention: the uniform one
                 slots = relation_slots(slots, uniform_attention(mask), edges, mask)
+                # with highway_head_groups the maps of attended kind 0 (the first refit, before
+                # the first epoch, fits every kind)
+                slots = slots // 2 * (2 * self.num_kinds) + slots % 2
             edges = edges[mask]  # (K, F)
             if len(edges) >= 2:
                 self.attended_mean.copy_(edges.mean(0))

@@ -73,7 +73,13 @@ from predictor.agent_frame import (
     rotate_tril,
 )
 from predictor.config import ModelConfig
-from predictor.graph import Graph, neighbour_graph, segment_softmax, segment_uniform
+from predictor.graph import (
+    Graph,
+    neighbour_graph,
+    role_balance,
+    segment_softmax,
+    segment_uniform,
+)
 from predictor.highway import (
     CROSS_FIT_FOLDS,
 )
@@ -594,13 +600,19 @@ class SmoothAttentionPredictor(HighwayMaps, nn.Module):
             # need not be applied to the edge outputs (same theta, far cheaper).
             query = self.f_attn(o_self) @ self.f_attn.weight  # (S, B*N, H)
             scores = (o_edge * query.index_select(1, graph.tail)).sum(-1)  # (S, E)
+            prior = None
+            if self.config.role_balanced_attention and roles is not None:
+                prior = role_balance(roles, together, graph, self.config.num_roles)
             if self.role_pair is not None and roles is not None:
                 if self.config.role_bias_by_group:
                     roles = self._groups_of(roles, roles)
                 flat = roles.flatten()  # (B*N,)
                 pair = self.role_pair[flat[graph.tail], flat[graph.head]]  # (E,)
                 scores = scores + pair
-            return segment_softmax(scores * self.config.attention_gain, together, graph)
+            logits = scores * self.config.attention_gain
+            if prior is not None:
+                logits = logits + prior
+            return segment_softmax(logits, together, graph)
         uniform = segment_uniform(together, graph, o_edge.dtype)  # (S, E)
         if mode == "uniform":
             return uniform

@@ -14,6 +14,7 @@ from predictor.graph import (
     adjacency,
     anchor_steps,
     neighbour_graph,
+    role_balance,
     segment_softmax,
     segment_uniform,
 )
@@ -137,6 +138,25 @@ def test_segment_softmax_equals_a_softmax_per_agent():
     assert torch.all(theta[~mask] == 0) and torch.all(uniform[~mask] == 0)
 
 
+def test_role_balance_gives_each_role_of_the_neighbours_one_share():
+    """Equal scores plus the role balance: agent 0 (role 0) among one role-1 agent and three
+    role-2 agents gives 1/2 to the role-1 agent and 1/6 to each role-2 agent (hand-computed);
+    when one role-2 agent is absent, 1/4 to each of the other two; masked edges get 0."""
+    positions = torch.randn(1, 4, 5, 2, generator=torch.Generator().manual_seed(0))
+    valid = torch.ones(1, 4, 5, dtype=torch.bool)
+    graph = neighbour_graph(positions, valid, 3)
+    roles = torch.tensor([[0, 1, 2, 2, 2]])
+    present = valid.transpose(0, 1).clone()  # (S, B, N)
+    present[1, 0, 4] = False  # agent 4 absent at step 1
+    mask = graph.edge_present(present)  # (S, E)
+    theta = graph.to_compact(segment_softmax(role_balance(roles, mask, graph, 3), mask, graph))
+    torch.testing.assert_close(theta[0, 0, 0], torch.tensor([1 / 2, 1 / 6, 1 / 6, 1 / 6]))
+    torch.testing.assert_close(theta[1, 0, 0], torch.tensor([1 / 2, 1 / 4, 1 / 4, 0.0]))
+    # a role-2 agent sees one role-0, one role-1 and two other role-2 agents
+    torch.testing.assert_close(theta[0, 0, 2], torch.tensor([1 / 3, 1 / 3, 1 / 6, 1 / 6]))
+    assert torch.all(role_balance(roles, mask, graph, 3)[~mask] == 0)
+
+
 # --------------------------------------------------------------------------- packed == dense
 def model_pair(mode: str = "learned", preset: str = "paper", seed: int = 0, **overrides):
     """The packed model and the dense reference with the same weights and buffers."""
@@ -144,8 +164,15 @@ def model_pair(mode: str = "learned", preset: str = "paper", seed: int = 0, **ov
         config = ModelConfig(**{**SMALL, "attention_mode": mode, **overrides})
     else:
         variant = {"learned": "ours", "uniform": "average", "oracle": "correct"}[mode]
-        # the dense reference predates the role-pair attention bias (tested in test_highway)
-        fixed = {**SMALL, "highway_steps": 3, "role_attention_bias": False, **overrides}
+        # the dense reference predates the role-pair attention bias and the role balance (both
+        # tested in test_highway)
+        fixed = {
+            **SMALL,
+            "highway_steps": 3,
+            "role_attention_bias": False,
+            "role_balanced_attention": False,
+            **overrides,
+        }
         config, _ = make_configs(variant, fixed, preset)
         config = resolve_roles(config, ROLE_NAMES)
     torch.manual_seed(seed)

@@ -582,6 +582,36 @@ def test_edge_relations_split_the_attention_by_each_edges_own_side():
     torch.testing.assert_close(second[0, 0, 0], torch.outer(z[0, 0, 0], z[0, 0, 0]))
 
 
+def test_edge_relations_split_by_the_attended_kind_too():
+    """With kinds (the attended agent's group), each (kind, side) part holds only its edges:
+    agent 0 has a kind-0 car ahead, a kind-1 car ahead and a kind-1 car behind."""
+    groups = torch.tensor([[1, 0, 1, 1]])
+    features = torch.zeros(1, 4, 3, 2)
+    features[0, 0, :, 0] = torch.tensor([5.0, 3.0, -1.0])
+    features[0, 0, :, 1] = torch.tensor([2.0, 4.0, 6.0])
+    mask = torch.ones(1, 4, 3, dtype=torch.bool)
+    mask[0, 1:] = False  # only agent 0 has usable edges
+    kinds = torch.tensor([[[0, 1, 1], [1, 1, 1], [0, 1, 1], [0, 1, 1]]])
+    theta = torch.tensor([[[0.5, 0.2, 0.3], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0]]])
+    mean, std = torch.zeros(2), torch.ones(2)
+    slots, masses, attended, second = edge_relations(
+        groups, theta, features, mask, mean, std, kinds, 2
+    )
+    # parts: kind 0 ahead, kind 0 behind, kind 1 ahead, kind 1 behind; 4 per group
+    assert slots[:, 0, 0].tolist() == [4, 5, 6, 7] and slots[:, 0, 1].tolist() == [0, 1, 2, 3]
+    torch.testing.assert_close(masses[:, 0, 0], torch.tensor([0.5, 0.0, 0.2, 0.3]))
+    assert masses[:, 0, 1].tolist() == [0.0, 1.0, 0.0, 0.0]  # no usable edge: kind 0 behind
+    for part, edge in ((0, 0), (2, 1), (3, 2)):  # each part holds one edge
+        torch.testing.assert_close(attended[part, 0, 0], features[0, 0, edge])
+        torch.testing.assert_close(
+            second[part, 0, 0], torch.outer(features[0, 0, edge], features[0, 0, edge])
+        )
+    # one kind: the two-part split of before
+    slots_one, masses_one, _, _ = edge_relations(groups, theta, features, mask, mean, std)
+    torch.testing.assert_close(masses_one[:, 0, 0], torch.tensor([0.7, 0.3]))
+    assert slots_one[:, 0, 0].tolist() == [2, 3]
+
+
 def test_edge_relation_maps_read_each_side_exactly_and_mix_by_the_attention():
     """Under the labelled attention the per-edge-relation fit reads the mirrored pair exactly
     (as the per-agent relation does); the rollout's change under mixed attention is the mix of
@@ -611,6 +641,61 @@ def test_edge_relation_maps_read_each_side_exactly_and_mix_by_the_attention():
     torch.testing.assert_close(mixed[both_sides], expected[both_sides])
     with pytest.raises(ValueError, match="edge_relations' needs highway_relation"):
         ModelConfig(**ORACLE_REFIT, num_roles=2, attended_fit="edge_relations")
+
+
+def test_head_groups_keep_the_other_kinds_edges_out_of_a_map():
+    """highway_head_groups: maps per (group, attended group, relation). The mirrored pair is
+    still read exactly under the labelled attention. Under learned attention shared equally by
+    the pair and the third car (another role; behind both, so on the front car's side), the
+    maps that read the pair are fitted on the pair's edges alone: changing the third car's
+    motion leaves the pair's reading of each other unchanged; without head groups it does not."""
+    num_observed, steps = 8, 14
+    positions, valid, labels, roles = mirrored_pair_scenes(60, steps, num_observed, seed=1)
+    common = {
+        **REFIT,
+        "highway_attended": True,
+        "attended_refit": True,
+        "num_roles": 2,
+        "highway_relation": True,
+        "attended_fit": "edge_relations",
+    }
+    oracle = SmoothAttentionPredictor(
+        ModelConfig(**common, attention_mode="oracle", highway_head_groups=True)
+    )
+    assert oracle.num_maps == 8  # 2 groups x 2 attended groups x 2 relations
+    oracle.fit_normalisation(positions, valid, num_observed, roles)
+    oracle.refit_attended(positions, valid, num_observed, labels, roles)
+    test, test_valid, test_labels, test_roles = mirrored_pair_scenes(8, steps, num_observed, 2)
+    out = oracle.predict(test, test_valid, num_observed, test_labels, roles=test_roles)
+    truth = test[:, num_observed:, :2]
+    assert (out.rollout.mean[:, :, :2] - truth).norm(dim=-1).max() < 0.05
+
+    gen = torch.Generator().manual_seed(3)
+    t = torch.arange(steps, dtype=torch.float32).view(1, -1, 1)
+    moved = positions.clone()  # the third car with another acceleration in every scene
+    moved[:, :, 2] += 0.05 * torch.randn(60, 1, 2, generator=gen) * t**2
+    readings = {}
+    for head_groups in (True, False):
+        for name, data in (("original", positions), ("moved", moved)):
+            torch.manual_seed(0)
+            model = SmoothAttentionPredictor(
+                ModelConfig(**common, highway_head_groups=head_groups)
+            )
+            with torch.no_grad():  # learned attention with zero scores: equal shares
+                model.f_attn.weight.zero_()
+            model.fit_normalisation(data, valid, num_observed, roles)
+            model.refit_attended(data, valid, num_observed, None, roles)
+            steps_in = model._prepare(test, test_valid, num_observed, test_labels, test_roles)
+            _, mask = model._neighbour_features(steps_in)
+            pair = torch.zeros_like(mask, dtype=torch.float)
+            pair[:, :, 0] = 1.0  # cars 0 and 1: edge 0 is the other one of the pair
+            with torch.no_grad():
+                readings[head_groups, name] = model._highway(steps_in, pair)[:, :2]
+    torch.testing.assert_close(readings[True, "original"], readings[True, "moved"])
+    difference = (readings[False, "original"] - readings[False, "moved"]).abs().max()
+    assert difference > 1e-3
+    with pytest.raises(ValueError, match="highway_head_groups needs attended_fit"):
+        ModelConfig(**ORACLE_REFIT, num_roles=2, highway_relation=True, highway_head_groups=True)
 
 
 def test_role_groups_pool_the_maps_of_roles_that_behave_alike():
@@ -669,6 +754,32 @@ def test_role_attention_bias_moves_the_attention_to_a_role():
     # scores alike (the softmax ignores it): the model then has none
     no_roles = SmoothAttentionPredictor(ModelConfig(**REFIT, role_attention_bias=True))
     assert no_roles.role_pair is None
+
+
+def test_role_balanced_attention_divides_each_weight_by_its_roles_count():
+    """With role_balanced_attention the learned attention is the plain one with each weight
+    divided by the number of the agent's neighbours of that role, renormalised (a softmax of
+    logits minus log counts); without roles (num_roles 0) it changes nothing."""
+    positions, valid, _, _ = mirrored_pair_scenes(4, 10, 8, seed=6)
+    positions = torch.cat([positions, positions[:, :, 2:] + 40.0], 2)  # two role-2 agents
+    valid = torch.cat([valid, valid[:, :, 2:]], 2)
+    roles = torch.tensor([0, 1, 2, 2]).expand(4, 4)
+    models = []
+    for balanced in (False, True):
+        torch.manual_seed(0)
+        config = ModelConfig(**REFIT, num_roles=3, role_balanced_attention=balanced)
+        models.append(SmoothAttentionPredictor(config))
+    plain, balanced = (m(positions, valid, 8, sample=False, roles=roles).attention for m in models)
+    counts = torch.tensor([[1.0, 2.0, 2.0], [1.0, 2.0, 2.0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]])
+    expected = plain / counts  # (B, T, N, N-1): columns are the other agents in slot order
+    expected = expected / expected.sum(-1, keepdim=True)
+    torch.testing.assert_close(balanced, expected)
+    without = []
+    for balanced in (False, True):  # num_roles 0: one kind of agent, nothing to balance
+        torch.manual_seed(0)
+        model = SmoothAttentionPredictor(ModelConfig(**REFIT, role_balanced_attention=balanced))
+        without.append(model(positions, valid, 8, sample=False).attention)
+    torch.testing.assert_close(without[0], without[1])
 
 
 def test_role_bias_by_group_is_one_bias_for_every_pair_of_its_groups():

@@ -155,6 +155,7 @@ REFIT_AGENT = {
             "role_attention_bias": True,
             "highway_role_groups": "0,0,1",
             "attended_fit": "edges",
+            "highway_head_groups": False,
         },
         {**REFIT_AGENT, "attended_fit": "edge_relations"},
     ],
