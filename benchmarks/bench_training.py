@@ -1,7 +1,7 @@
 """Training throughput of the smooth-attention predictor on CPU (synthetic data, default shape).
 
 Usage: python benchmarks/bench_training.py [--threads 1] [--repeats 3] [--variant ours]
-[--presets paper,agent,agent_own_highway]
+[--presets paper,agent,agent_edge_relations,agent_own_highway]
 (`--threads 1,2` compares thread counts; only meaningful on an otherwise idle machine: with
 the other core busy, 2 threads oversubscribe and one epoch took 146 s instead of 2.2 s.)
 
@@ -9,7 +9,8 @@ Times whole training epochs (optimiser steps included) and the per-epoch validat
 synthetic scenes of the default Double Merge shape (52 train + 13 val scenes, T = 60 steps,
 15 observed, 22 agents = 462 edges per scene, the preset's batch size: 8 for `paper`, 4 for
 `agent`), for each preset (and `agent_own_highway`, the agent preset without its attended
-highway) and torch thread count. Reports, per preset and thread count, the
+highway, and `agent_edge_relations`, without its role balance and head groups) and torch
+thread count. Reports, per preset and thread count, the
 median over repeats of:
 
 - epoch_s / val_s: one training epoch (with the attended highway's refit at its start where
@@ -45,8 +46,9 @@ from predictor.model import SmoothAttentionPredictor  # noqa: E402
 from predictor.training import make_optimizer, train_step  # noqa: E402
 
 ROLE_NAMES = ("main_green", "main_brown", "distractor")  # the scenarios' roles (agent preset)
-# Settings timed besides the presets: the agent preset before its attended highway (own-history
-# highway only; the preset until 2026-11-26), to show what the attended highway costs.
+# Settings timed besides the presets, to show what each addition costs: the agent preset before
+# its attended highway (own-history highway only; the preset until 2026-11-26), and before its
+# role balance and head groups (changed later on 2026-11-26).
 SETTINGS: dict[str, tuple[str, dict]] = {
     "agent_own_highway": (
         "agent",
@@ -57,6 +59,10 @@ SETTINGS: dict[str, tuple[str, dict]] = {
             "attended_fit": "mean",
             "role_attention_bias": False,
         },
+    ),
+    "agent_edge_relations": (
+        "agent",
+        {"role_balanced_attention": False, "highway_head_groups": False},
     ),
 }
 
@@ -187,8 +193,9 @@ def main() -> None:
     parser.add_argument("--variant", default="ours", help="model variant")
     parser.add_argument(
         "--presets",
-        default="paper,agent,agent_own_highway",
-        help="comma-separated presets or SETTINGS (default paper,agent,agent_own_highway)",
+        default="paper,agent,agent_edge_relations,agent_own_highway",
+        help="comma-separated presets or SETTINGS (default paper,agent,"
+        "agent_edge_relations,agent_own_highway)",
     )
     parser.add_argument("--scenes", type=int, default=52, help="training scenes")
     parser.add_argument("--val-scenes", type=int, default=13, help="validation scenes")

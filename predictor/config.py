@@ -186,7 +186,9 @@ class ModelConfig:
     # edges alone, as heterogeneous-graph models keep one encoder per edge type. Without it the
     # map that reads the other main car is fitted on the attention-weighted mix of it and the
     # distractors on the same side, whose readings carry nothing and dilute the map. Needs
-    # attended_fit "edge_relations"; one kind (as off) without roles.
+    # attended_fit "edge_relations"; one kind (as off) without roles. On in the agent preset
+    # with role_balanced_attention (Double Merge v1, 5 seeds: 0.940 m against 1.505 m without
+    # the two; docs/PREDICTOR.md).
     highway_head_groups: bool = False
     # A learnt bias per pair of roles (attending, attended) added to the learned attention's
     # scores: "this kind of agent attends to that kind" is one parameter whose gradient sums
@@ -203,7 +205,8 @@ class ModelConfig:
     # among 20 distractors, uniform scores put 1/2 on the main car instead of 1/21, so the
     # refitted attended maps read it from the first epoch; the scores can still learn to leave
     # it. A fixed prior over kinds of neighbour, not a parameter. Ignored without roles and by
-    # fixed attention.
+    # fixed attention. On in the agent preset with highway_head_groups (alone it found the
+    # other main car but predicted worse; docs/PREDICTOR.md).
     role_balanced_attention: bool = False
     # With highway_role_groups: the role_attention_bias per pair of role groups (attending,
     # attended) instead of roles, so roles that drive alike also attend alike and pool the
@@ -461,8 +464,9 @@ VARIANTS: dict[str, Variant] = {
 # with smaller batches (more optimiser steps: 52 training scenes at batch 8 are only 7 steps
 # per epoch), the main agents' loss terms weighted 5x, a cross-fitted linear highway for the
 # agent's own motion and for the attended agents (refitted every epoch, one map per relation,
-# each edge read by its own relation's map), a learned attention bias per pair of roles and
-# attention scores times 10. docs/PREDICTOR.md has the measurement behind each switch.
+# each edge read by its own relation's map and its attended agent's role group's), a learned
+# attention bias per pair of roles, attention that starts with equal shares per neighbour role
+# and scores times 10. docs/PREDICTOR.md has the measurement behind each switch.
 PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     "paper": ({}, {}),
     "agent": (
@@ -480,6 +484,8 @@ PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
             "highway_relation": True,
             "attended_fit": "edge_relations",
             "role_attention_bias": True,
+            "role_balanced_attention": True,
+            "highway_head_groups": True,
             "attention_gain": 10.0,
         },
         {

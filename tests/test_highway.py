@@ -678,9 +678,7 @@ def test_head_groups_keep_the_other_kinds_edges_out_of_a_map():
     for head_groups in (True, False):
         for name, data in (("original", positions), ("moved", moved)):
             torch.manual_seed(0)
-            model = SmoothAttentionPredictor(
-                ModelConfig(**common, highway_head_groups=head_groups)
-            )
+            model = SmoothAttentionPredictor(ModelConfig(**common, highway_head_groups=head_groups))
             with torch.no_grad():  # learned attention with zero scores: equal shares
                 model.f_attn.weight.zero_()
             model.fit_normalisation(data, valid, num_observed, roles)
