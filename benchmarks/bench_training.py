@@ -58,6 +58,8 @@ SETTINGS: dict[str, tuple[str, dict]] = {
             "highway_relation": False,
             "attended_fit": "mean",
             "role_attention_bias": False,
+            "role_balanced_attention": False,
+            "highway_head_groups": False,
         },
     ),
     "agent_edge_relations": (

@@ -170,7 +170,9 @@ def segment_uniform(mask: Tensor, graph: Graph, dtype: torch.dtype = torch.float
     return weights / count.index_select(1, graph.tail).clamp(min=1.0)
 
 
-def role_balance(roles: Tensor, mask: Tensor, graph: Graph, num_roles: int) -> Tensor:
+def role_balance(
+    roles: Tensor, mask: Tensor, graph: Graph, num_roles: int, dtype: torch.dtype = torch.float32
+) -> Tensor:
     """-log(number of the tail's unmasked edges whose head has this edge's head role), (S, E).
 
     Added to attention logits it gives every role among an agent's neighbours the same total
@@ -179,8 +181,8 @@ def role_balance(roles: Tensor, mask: Tensor, graph: Graph, num_roles: int) -> T
     roles (B, N) int64 in [0, num_roles); mask (S, E) bool; masked edges get 0.
     """
     head_role = roles.flatten().index_select(0, graph.head)  # (E,)
-    onehot = torch.nn.functional.one_hot(head_role, num_roles).to(torch.float32)  # (E, R)
-    per_edge = mask.to(torch.float32).unsqueeze(-1) * onehot  # (S, E, R)
+    onehot = torch.nn.functional.one_hot(head_role, num_roles).to(dtype)  # (E, R)
+    per_edge = mask.to(dtype).unsqueeze(-1) * onehot  # (S, E, R)
     counts = graph.sum_by_tail(per_edge).index_select(1, graph.tail)  # (S, E, R)
     same = counts.gather(-1, head_role.view(1, -1, 1).expand(mask.shape[0], -1, 1)).squeeze(-1)
     return -torch.log(same.clamp(min=1.0)).masked_fill(~mask, 0.0)

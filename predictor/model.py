@@ -602,7 +602,7 @@ class SmoothAttentionPredictor(HighwayMaps, nn.Module):
             scores = (o_edge * query.index_select(1, graph.tail)).sum(-1)  # (S, E)
             prior = None
             if self.config.role_balanced_attention and roles is not None:
-                prior = role_balance(roles, together, graph, self.config.num_roles)
+                prior = role_balance(roles, together, graph, self.config.num_roles, scores.dtype)
             if self.role_pair is not None and roles is not None:
                 if self.config.role_bias_by_group:
                     roles = self._groups_of(roles, roles)

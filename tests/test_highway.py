@@ -559,6 +559,18 @@ def test_relation_slots_follow_the_attention_weighted_position():
     assert relation_slots(roles, uniform, features, mask).tolist() == [[0, 3, 2]]
 
 
+def fit_and_read_the_pair_exactly(model, positions, valid, labels, roles, num_observed: int):
+    """Fit the model's highway on the mirrored pair scenes and check that it predicts 8 fresh
+    ones (seed 2) to 5 cm under its attention; returns their (positions, valid, labels, roles)."""
+    model.fit_normalisation(positions, valid, num_observed, roles)
+    model.refit_attended(positions, valid, num_observed, labels, roles)
+    test = mirrored_pair_scenes(8, positions.shape[1], num_observed, 2)
+    out = model.predict(test[0], test[1], num_observed, test[2], roles=test[3])
+    truth = test[0][:, num_observed:, :2]
+    assert (out.rollout.mean[:, :, :2] - truth).norm(dim=-1).max() < 0.05
+    return test
+
+
 def test_edge_relations_split_the_attention_by_each_edges_own_side():
     groups = torch.tensor([[0, 1, 1]])
     features = torch.zeros(1, 3, 2, 2)
@@ -622,12 +634,9 @@ def test_edge_relation_maps_read_each_side_exactly_and_mix_by_the_attention():
         **ORACLE_REFIT, num_roles=2, highway_relation=True, attended_fit="edge_relations"
     )
     model = SmoothAttentionPredictor(config)
-    model.fit_normalisation(positions, valid, num_observed, roles)
-    model.refit_attended(positions, valid, num_observed, labels, roles)
-    test, test_valid, test_labels, test_roles = mirrored_pair_scenes(8, steps, num_observed, 2)
-    out = model.predict(test, test_valid, num_observed, test_labels, roles=test_roles)
-    truth = test[:, num_observed:, :2]
-    assert (out.rollout.mean[:, :, :2] - truth).norm(dim=-1).max() < 0.05
+    test, test_valid, test_labels, test_roles = fit_and_read_the_pair_exactly(
+        model, positions, valid, labels, roles, num_observed
+    )
     steps_in = model._prepare(test, test_valid, num_observed, test_labels, test_roles)
     edges, mask = model._neighbour_features(steps_in)
     first, second = torch.zeros_like(mask, dtype=torch.float), torch.zeros_like(mask).float()
@@ -663,12 +672,9 @@ def test_head_groups_keep_the_other_kinds_edges_out_of_a_map():
         ModelConfig(**common, attention_mode="oracle", highway_head_groups=True)
     )
     assert oracle.num_maps == 8  # 2 groups x 2 attended groups x 2 relations
-    oracle.fit_normalisation(positions, valid, num_observed, roles)
-    oracle.refit_attended(positions, valid, num_observed, labels, roles)
-    test, test_valid, test_labels, test_roles = mirrored_pair_scenes(8, steps, num_observed, 2)
-    out = oracle.predict(test, test_valid, num_observed, test_labels, roles=test_roles)
-    truth = test[:, num_observed:, :2]
-    assert (out.rollout.mean[:, :, :2] - truth).norm(dim=-1).max() < 0.05
+    test, test_valid, test_labels, test_roles = fit_and_read_the_pair_exactly(
+        oracle, positions, valid, labels, roles, num_observed
+    )
 
     gen = torch.Generator().manual_seed(3)
     t = torch.arange(steps, dtype=torch.float32).view(1, -1, 1)
