@@ -191,3 +191,10 @@ def tool_env() -> dict[str, str]:
     env["OMP_NUM_THREADS"] = "1"
     env["MPLBACKEND"] = "Agg"
     return env
+
+
+def one_line(err: pytest.ExceptionInfo) -> str:
+    """The raised exception's message, checked to be a single line (the CLI's error format)."""
+    message = str(err.value)
+    assert "\n" not in message
+    return message

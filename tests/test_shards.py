@@ -13,7 +13,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from conftest import assert_sets_equal, make_meta, make_trajectory_set
+from conftest import assert_sets_equal, make_meta, make_trajectory_set, one_line
 
 from predictor.format import SPLITS, FormatError, TrajectorySet, write_dataset
 from predictor.format_reader import read_dataset, read_meta, read_split, shard_files, summarize
@@ -98,19 +98,13 @@ def test_moved_folder_stays_readable_from_anywhere(sharded, tmp_path: Path, monk
         assert_sets_equal(read_back[split], splits[split])
 
 
-def _one_line(err: pytest.ExceptionInfo) -> str:
-    message = str(err.value)
-    assert "\n" not in message
-    return message
-
-
 def test_missing_shard_is_one_line_naming_it(sharded) -> None:
     index, _ = sharded
     (index.parent / "train-00001.h5").unlink()
     for read in (read_meta, lambda path: read_split(path, "test")):
         with pytest.raises(FormatError, match="missing shard train-00001.h5") as err:
             read(index)
-        assert _one_line(err).startswith(f"{index}: ")
+        assert one_line(err).startswith(f"{index}: ")
 
 
 @pytest.mark.parametrize(
@@ -154,7 +148,7 @@ def test_damaged_shard_is_one_line_naming_it(sharded, damage: str, message: str)
         shard.write_bytes(bytes(data))
     with pytest.raises(FormatError, match=message) as err:
         read_dataset(index)
-    assert _one_line(err).startswith(f"{index}: ")
+    assert one_line(err).startswith(f"{index}: ")
 
 
 def test_an_interrupted_write_leaves_nothing(tmp_path: Path) -> None:
