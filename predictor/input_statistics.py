@@ -1,0 +1,125 @@
+"""The predictor's input and output scales: fitted on the training split (`fit_normalisation`,
+kept as buffers in the checkpoint) or the paper model's car constants, and the standardised
+agent-frame inputs and edge embeddings that use them.
+
+`InputStatistics` is a mixin of `SmoothAttentionPredictor` (predictor.model), which owns the
+buffers it writes (`input_mean`, `input_std`, `offset_std`, `anchor_std`, registered in its
+constructor), the layers it reads (`f_interact`) and the pass it calls (`_prepare`); the
+highway's fit (`_fit_highway`) is in predictor.highway_maps.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from predictor.agent_frame import AgentFrame, own_features, pair_features, rotate
+from predictor.config import ModelConfig
+from predictor.graph import Graph
+from predictor.highway_maps import MIN_STAT_STD
+
+
+class InputStatistics:
+    """Input standardisation and scales of `SmoothAttentionPredictor` (see the module
+    docstring)."""
+
+    config: ModelConfig
+
+    def _agent_inputs(
+        self, pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFrame, graph: Graph
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """Standardised agent-frame inputs: own position (S, B, N, 2), own velocity (S, B, N, 2)
+        and the edge embeddings x_ij (S, E, emb) of the graph's edges from (own position,
+        relative position [, relative velocity]) in agent i's frame; zeros where an agent (of an
+        edge: either agent) is absent."""
+        own = own_features(pos, prev_pos, present, frame)  # (S, B, N, 4)
+        own = (own - self.input_mean[:4]) / self.input_std[:4]
+        own = torch.where(present.unsqueeze(-1), own, 0.0)
+        pair = pair_features(pos, prev_pos, present, frame, graph.tail, graph.head)  # (S, E, 4)
+        pair = (pair - self.input_mean[4:]) / self.input_std[4:]
+        pair = torch.where(graph.edge_present(present).unsqueeze(-1), pair, 0.0)
+        width = 4 if self.config.edge_velocity else 2
+        own_per_edge = own[..., :2].flatten(1, 2).index_select(1, graph.tail)  # (S, E, 2)
+        x_edge = self.f_interact(torch.cat([own_per_edge, pair[..., :width]], -1))
+        return own[..., :2], own[..., 2:], x_edge
+
+    @torch.no_grad()
+    def fit_normalisation(
+        self, positions: Tensor, valid: Tensor, num_observed: int, roles: Tensor | None = None
+    ) -> None:
+        """Set the input means/stds (if `standardise`) and the offset scale (if
+        offset_scale="deviation") from (training) scenes (B, T, N, 2), (B, T, N).
+
+        Features are those the model sees (agent frames as in `agent_frames`), over present
+        agent-steps (edges: the model's graph, both agents present). `offset_std` is the RMS
+        per axis of the agent-frame one-step deviation from constant velocity,
+        p^{t+1} - 2 p^t + p^{t-1} (zero mean by construction, so a zero output stays constant
+        velocity; also the unit of the acceleration input, `acceleration_input`). `anchor_std`
+        (rollout_prior "anchored") is the RMS per axis of the agent-frame velocity change since
+        the last observed step, v^t - v^{T_obs-1}, over the predicted steps. With
+        `highway_steps` the highway's maps are fitted too (`_fit_highway`; roles (B, N) choose
+        the map where the model reads roles).
+        """
+        if self.config.frame != "agent":
+            raise ValueError("fit_normalisation needs frame='agent'")
+        no_labels = torch.full(valid.shape, -1, dtype=torch.long)  # labels play no part here
+        no_roles = torch.zeros(valid.shape[0], valid.shape[2], dtype=torch.long)  # nor roles
+        steps = self._prepare(positions, valid, num_observed, no_labels, no_roles)
+        present = steps.present
+        if self.config.standardise:  # over present agent-steps and the graph's present edges
+            graph = steps.graph
+            own = own_features(steps.pos, steps.prev_pos, present, steps.frame)[present]  # (K, 4)
+            pair = pair_features(
+                steps.pos, steps.prev_pos, present, steps.frame, graph.tail, graph.head
+            )[graph.edge_present(present)]  # (K2, 4)
+            pair_mean, pair_std = pair.new_zeros(4), pair.new_ones(4)  # no pairs: identity
+            if len(pair) >= 2:  # (scenes of one agent have no pairs to measure)
+                pair_mean, pair_std = pair.mean(0), pair.std(0)
+            self.input_mean.copy_(torch.cat([own.mean(0), pair_mean]))
+            std = torch.cat([own.std(0), pair_std])
+            self.input_std.copy_(std.clamp(min=MIN_STAT_STD))
+        if self.config.offset_scale == "deviation" or self.config.acceleration_input:
+            pos, prev = steps.pos, steps.prev_pos
+            dev = pos[1:] - 2 * pos[:-1] + prev[:-1]  # (T-1, B, N, 2)
+            before = torch.cat([present[:1] & False, present[:-2]], 0)  # (T-1, B, N) at t-1
+            ok = present[1:] & present[:-1] & before
+            local = rotate(dev, steps.frame[1], inverse=True)[ok]  # (K, 2)
+            self.offset_std.copy_(local.pow(2).mean(0).sqrt().clamp(min=MIN_STAT_STD))
+        if self.config.rollout_prior == "anchored":
+            t_obs = num_observed
+            velocity = steps.pos - steps.prev_pos  # (T, B, N, 2)
+            change = velocity[t_obs:] - velocity[t_obs - 1]  # (T_pred, B, N, 2)
+            before = present[t_obs - 2] if t_obs >= 2 else torch.zeros_like(present[0])
+            ok = present[t_obs:] & present[t_obs - 1 : -1] & present[t_obs - 1] & before
+            local = rotate(change, steps.frame[1], inverse=True)[ok]  # (K, 2)
+            self.anchor_std.copy_(local.pow(2).mean(0).sqrt().clamp(min=MIN_STAT_STD))
+        if self.config.highway_steps:
+            self._fit_highway(steps, roles)
+
+    def _default_normalisation(self) -> None:
+        """Unfitted scales: the car constants of the paper model (used when not standardise)."""
+        cfg = self.config
+        scales = [cfg.position_scale_m] * 2 + [cfg.step_scale_m] * 2
+        scales += [cfg.interaction_scale_m] * 2 + [cfg.step_scale_m] * 2
+        with torch.no_grad():
+            self.input_std.copy_(torch.tensor(scales))
+            self.offset_std.fill_(cfg.step_scale_m)
+            self.anchor_std.fill_(cfg.step_scale_m)
+
+    def _edge_inputs(self, rel: Tensor, graph: Graph) -> Tensor:
+        """x_ij = F_interact(concat(s_i, s_j - s_i)) of the graph's edges: (S, B, N, 2) ->
+        (S, E, emb).
+
+        s_i is the position at `position_scale_m`, s_j - s_i the offset at `interaction_scale_m`.
+
+        The linear layer is split into a tail part and a head part, evaluated per agent and
+        added per edge, which is exact and avoids a matmul over the edges.
+        """
+        linear = self.f_interact[0]
+        gain = self.config.position_scale_m / self.config.interaction_scale_m
+        w_tail, w_rel = linear.weight[:, :2], linear.weight[:, 2:] * gain  # (E, 2), (E, 2)
+        per_tail = F.linear(rel, w_tail - w_rel, linear.bias).flatten(1, 2)  # (S, B*N, emb)
+        per_head = F.linear(rel, w_rel).flatten(1, 2)  # (S, B*N, emb)
+        summed = per_tail.index_select(1, graph.tail) + per_head.index_select(1, graph.head)
+        return self.f_interact[1](summed)  # (S, E, emb)
