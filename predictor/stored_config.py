@@ -44,6 +44,7 @@ ADDED_MODEL_FIELDS: dict[str, Any] = {
     "role_attention_bias": False,
     "role_bias_by_group": False,
     "role_balanced_attention": False,
+    "refit_on_prior": False,
     "highway_role_groups": "",
     "neighbours": "all",
     "neighbour_radius_m": 50.0,

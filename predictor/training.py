@@ -498,10 +498,12 @@ def _one_epoch(
 ) -> dict:
     """Train one epoch, validate if due, update the best score; returns the metrics record."""
     started = time.perf_counter()
-    learned = state.model.config.attention_mode == "learned"
+    model_cfg = state.model.config
+    changes = model_cfg.attention_mode == "learned" and not model_cfg.refit_on_prior
     # the highway read with this epoch's attention; uniform or oracle attention never changes,
-    # so its fit at the first epoch (kept in the checkpoint) holds for every later one
-    if state.refit_scenes is not None and (learned or epoch == 1):
+    # nor does the prior of refit_on_prior, so the fit at the first epoch (kept in the
+    # checkpoint) holds for every later one
+    if state.refit_scenes is not None and (changes or epoch == 1):
         scenes = state.refit_scenes
         state.model.refit_attended(
             scenes.positions, scenes.valid, num_observed, scenes.attention, scenes.roles

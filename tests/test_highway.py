@@ -702,6 +702,50 @@ def test_head_groups_keep_the_other_kinds_edges_out_of_a_map():
         ModelConfig(**ORACLE_REFIT, num_roles=2, highway_relation=True, highway_head_groups=True)
 
 
+def test_refit_on_prior_fits_with_the_role_balanced_attention_whatever_was_learned():
+    """refit_on_prior: the maps are those of a refit under the learned attention's prior,
+    which a learned attention with zero scores gives (equal shares per role with
+    role_balanced_attention); changing the learned scores leaves them as they were."""
+    num_observed, steps = 8, 14
+    positions, valid, _, _ = mirrored_pair_scenes(30, steps, num_observed, seed=8)
+    positions = torch.cat([positions, positions[:, :, 2:] + torch.tensor([5.0, 0.0])], 2)
+    valid = torch.ones(positions.shape[:3], dtype=torch.bool)
+    roles = torch.tensor([0, 0, 1, 1]).expand(30, 4)  # two of each role: the balance matters
+    common = {
+        **REFIT,
+        "highway_attended": True,
+        "attended_refit": True,
+        "num_roles": 2,
+        "highway_relation": True,
+        "attended_fit": "edge_relations",
+        "highway_head_groups": True,
+        "role_balanced_attention": True,
+    }
+    buffers = ("highway_weight", "highway_bias", "attended_weight", "highway_low")
+    fitted = {}
+    for name, prior, scale in (("zero", False, 0.0), ("prior", True, 3.0), ("moved", True, -2.0)):
+        torch.manual_seed(0)
+        model = SmoothAttentionPredictor(ModelConfig(**common, refit_on_prior=prior))
+        with torch.no_grad():
+            model.f_attn.weight.normal_(0.0, 1.0).mul_(scale)
+        model.fit_normalisation(positions, valid, num_observed, roles)
+        model.refit_attended(positions, valid, num_observed, None, roles)
+        fitted[name] = [getattr(model, b).clone() for b in buffers]
+        steps_in = model._prepare(positions, valid, num_observed, None, roles)
+        if name == "zero":  # zero scores: the role-balanced prior (a third per role pair...)
+            with torch.no_grad():
+                theta = model._block(steps_in, 0, num_observed, None).attention[-1]
+            torch.testing.assert_close(theta, model._prior_attention(steps_in))
+            # agent 0 (role 0) sees one role-0 car (1/2) and two role-1 cars (1/4 each)
+            torch.testing.assert_close(theta[0, 0], torch.tensor([0.5, 0.25, 0.25]))
+    for got, want in zip(fitted["prior"], fitted["zero"]):
+        torch.testing.assert_close(got, want)
+    for got, want in zip(fitted["moved"], fitted["zero"]):
+        torch.testing.assert_close(got, want)
+    with pytest.raises(ValueError, match="refit_on_prior needs attended_refit"):
+        ModelConfig(**REFIT, refit_on_prior=True)
+
+
 def test_role_groups_pool_the_maps_of_roles_that_behave_alike():
     """Two cars of *different* roles in the mirrored pair: pooled in one group they share
     each relation's maps (4 maps instead of 6), fitted on both cars' scenes, and each relation

@@ -67,6 +67,7 @@ MODEL_FLAGS = (
     "role_attention_bias",
     "role_bias_by_group",
     "role_balanced_attention",
+    "refit_on_prior",
     "highway_role_groups",
     "neighbours",
     "neighbour_radius_m",
