@@ -559,6 +559,17 @@ def test_relation_slots_follow_the_attention_weighted_position():
     assert relation_slots(roles, uniform, features, mask).tolist() == [[0, 3, 2]]
 
 
+# the attended highway with each edge read by its own relation's map, two roles
+EDGE_RELATIONS = {
+    **REFIT,
+    "highway_attended": True,
+    "attended_refit": True,
+    "num_roles": 2,
+    "highway_relation": True,
+    "attended_fit": "edge_relations",
+}
+
+
 def fit_and_read_the_pair_exactly(model, positions, valid, labels, roles, num_observed: int):
     """Fit the model's highway on the mirrored pair scenes and check that it predicts 8 fresh
     ones (seed 2) to 5 cm under its attention; returns their (positions, valid, labels, roles)."""
@@ -660,14 +671,7 @@ def test_head_groups_keep_the_other_kinds_edges_out_of_a_map():
     motion leaves the pair's reading of each other unchanged; without head groups it does not."""
     num_observed, steps = 8, 14
     positions, valid, labels, roles = mirrored_pair_scenes(60, steps, num_observed, seed=1)
-    common = {
-        **REFIT,
-        "highway_attended": True,
-        "attended_refit": True,
-        "num_roles": 2,
-        "highway_relation": True,
-        "attended_fit": "edge_relations",
-    }
+    common = EDGE_RELATIONS
     oracle = SmoothAttentionPredictor(
         ModelConfig(**common, attention_mode="oracle", highway_head_groups=True)
     )
@@ -712,12 +716,7 @@ def test_refit_on_prior_fits_with_the_role_balanced_attention_whatever_was_learn
     valid = torch.ones(positions.shape[:3], dtype=torch.bool)
     roles = torch.tensor([0, 0, 1, 1]).expand(30, 4)  # two of each role: the balance matters
     common = {
-        **REFIT,
-        "highway_attended": True,
-        "attended_refit": True,
-        "num_roles": 2,
-        "highway_relation": True,
-        "attended_fit": "edge_relations",
+        **EDGE_RELATIONS,
         "highway_head_groups": True,
         "role_balanced_attention": True,
     }
