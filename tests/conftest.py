@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -191,6 +192,19 @@ def tool_env() -> dict[str, str]:
     env["OMP_NUM_THREADS"] = "1"
     env["MPLBACKEND"] = "Agg"
     return env
+
+
+def run_tool(
+    name: str, *args: object, timeout: float = 120, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess:
+    """Run tools/<name> with `args` in a subprocess (`tool_env()` unless `env`), output captured."""
+    return subprocess.run(
+        [sys.executable, str(REPO_ROOT / "tools" / name), *map(str, args)],
+        capture_output=True,
+        text=True,
+        env=tool_env() if env is None else env,
+        timeout=timeout,
+    )
 
 
 def one_line(err: pytest.ExceptionInfo) -> str:

@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
-from conftest import REPO_ROOT, tool_env
+from conftest import run_tool
 
 from predictor.baselines import constant_velocity
 from predictor.format_reader import read_meta, read_split
@@ -18,13 +16,7 @@ def test_demo_writes_every_output_and_reports_both_predictors(tmp_path):
     out = tmp_path / "demo"
     out.mkdir()
     (out / "stale.txt").write_text("from an earlier run")
-    completed = subprocess.run(
-        [sys.executable, str(REPO_ROOT / "tools" / "demo.py"), "--out", str(out), "--epochs", "1"],
-        capture_output=True,
-        text=True,
-        env=tool_env(),
-        timeout=600,
-    )
+    completed = run_tool("demo.py", "--out", out, "--epochs", "1", timeout=600)
     assert completed.returncode == 0, completed.stderr
     last = completed.stdout.strip().splitlines()[-1]
     assert last.startswith("demo done in ") and last.endswith(f"results in {out}/")

@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import h5py
@@ -16,7 +15,7 @@ from conftest import (
     assert_sets_equal,
     downgrade_to_schema_1,
     one_line,
-    tool_env,
+    run_tool,
     write_small_dataset,
 )
 
@@ -137,14 +136,7 @@ def test_summarize_reports_counts_per_split_and_case(dataset_file: Path) -> None
 
 
 def _inspect(*args: object) -> subprocess.CompletedProcess:
-    tool = Path(__file__).resolve().parents[1] / "tools" / "inspect_data.py"
-    return subprocess.run(
-        [sys.executable, str(tool), *map(str, args)],
-        capture_output=True,
-        text=True,
-        env=tool_env(),
-        timeout=120,
-    )
+    return run_tool("inspect_data.py", *args)
 
 
 def test_inspect_tool_accepts_valid_file(dataset_file: Path) -> None:

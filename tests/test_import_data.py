@@ -4,12 +4,11 @@ counted by hand, read back through predictor.format, bad input refused in one li
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import REPO_ROOT, tool_env
+from conftest import run_tool
 
 from pipeline.importers.common import ImportDataError, Tracks, frame_step
 from pipeline.importers.eth_ucy import EthUcyConfig, import_eth_ucy
@@ -20,8 +19,6 @@ from predictor.evaluation import evaluate_baseline, evaluate_run
 from predictor.format import SPLITS
 from predictor.format_reader import read_dataset
 from predictor.training import train
-
-TOOL = REPO_ROOT / "tools" / "import_data.py"
 
 
 def position(ped: int, grid: int) -> tuple[float, float]:
@@ -58,21 +55,15 @@ def make_scene(root: Path) -> None:
     write_file(scene / "test" / "d.txt", rows(1, range(21)))
 
 
-def run_tool(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, str(TOOL), *map(str, args)],
-        capture_output=True,
-        text=True,
-        env=tool_env(),
-        timeout=120,
-    )
+def run_importer(*args: object) -> subprocess.CompletedProcess:
+    return run_tool("import_data.py", *args)
 
 
 def test_windows_counted_by_hand_read_back(tmp_path: Path) -> None:
     make_scene(tmp_path / "raw")
     out = tmp_path / "out"
     out.mkdir()
-    result = run_tool("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
+    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
     assert result.returncode == 0, result.stderr
     path = out / "eth_ucy_hotel.h5"
     assert sorted(p.name for p in out.iterdir()) == ["eth_ucy_hotel.h5"]  # no temporary left
@@ -143,7 +134,7 @@ def test_malformed_line_exits_2_naming_file_and_line(tmp_path: Path, line: str, 
     bad.write_text("\n".join(lines) + "\n")
     out = tmp_path / "out"
     out.mkdir()
-    result = run_tool("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
+    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
     assert result.returncode == 2
     errors = result.stderr.strip().splitlines()
     assert len(errors) == 1 and "Traceback" not in result.stderr
@@ -155,18 +146,20 @@ def test_refuses_to_overwrite_and_writes_all_scenes_or_none(tmp_path: Path) -> N
     make_scene(tmp_path / "raw")
     out = tmp_path / "out"
     out.mkdir()
-    first = run_tool("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
+    first = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
     assert first.returncode == 0
     before = (out / "eth_ucy_hotel.h5").read_bytes()
-    again = run_tool("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
+    again = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
     assert again.returncode == 2 and "already exists; pass --overwrite" in again.stderr
     assert (out / "eth_ucy_hotel.h5").read_bytes() == before
-    forced = run_tool("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", "--overwrite")
+    forced = run_importer(
+        "eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", "--overwrite"
+    )
     assert forced.returncode == 0
     # zara1 has no folder: the error names it and hotel is not written either
     fresh = tmp_path / "fresh"
     fresh.mkdir()
-    both = run_tool("eth-ucy", tmp_path / "raw", "--out", fresh, "--scenes", "hotel", "zara1")
+    both = run_importer("eth-ucy", tmp_path / "raw", "--out", fresh, "--scenes", "hotel", "zara1")
     assert both.returncode == 2 and "zara1/train: missing folder" in both.stderr
     assert list(fresh.iterdir()) == []
 
@@ -236,7 +229,7 @@ def write_interaction(folder: Path, heading: bool = False) -> None:
 def test_interaction_split_by_sequence_80_10_10(tmp_path: Path) -> None:
     write_interaction(tmp_path / "raw")
     out = tmp_path / "inter.h5"
-    result = run_tool("interaction", tmp_path / "raw", "--out", out)
+    result = run_importer("interaction", tmp_path / "raw", "--out", out)
     assert result.returncode == 0, result.stderr
     meta, splits = read_dataset(out)
     assert (meta.dt, meta.num_observed, meta.num_predicted) == (0.1, 40, 60)
@@ -298,7 +291,7 @@ def test_interaction_malformed_input_exits_2_naming_the_line(tmp_path, edit, whe
     bad.write_text("\n".join(lines) + "\n")
     out = tmp_path / "out" / "inter.h5"
     out.parent.mkdir()
-    result = run_tool("interaction", tmp_path / "raw", "--out", out)
+    result = run_importer("interaction", tmp_path / "raw", "--out", out)
     assert result.returncode == 2
     errors = result.stderr.strip().splitlines()
     assert len(errors) == 1 and errors[0].startswith(f"error: {bad}{where}"), errors

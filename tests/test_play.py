@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import REPO_ROOT, load_tool, tool_env
+from conftest import REPO_ROOT, load_tool, run_tool, tool_env
 
 PLAY = REPO_ROOT / "tools" / "play.py"
 NO_DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")
@@ -50,13 +50,7 @@ runpy.run_path(sys.argv[0], run_name="__main__")
 
 
 def run_play(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, str(PLAY), *args],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env=tool_env() if env is None else env,
-    )
+    return run_tool("play.py", *args, env=env)
 
 
 def assert_one_error_line(done: subprocess.CompletedProcess, start: str) -> None:

@@ -16,6 +16,7 @@ from conftest import (
     make_meta,
     make_predictions,
     make_trajectory_set,
+    run_tool,
     tool_env,
     write_predictions_npz,
 )
@@ -35,17 +36,9 @@ from predictor.plots import (
     save_figure,
 )
 
-PLOT_TOOL = REPO_ROOT / "tools" / "plot.py"
 
-
-def _run_plot(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, str(PLOT_TOOL), *map(str, args)],
-        capture_output=True,
-        text=True,
-        env=tool_env(),
-        timeout=120,
-    )
+def _run_plot(*args: object) -> subprocess.CompletedProcess:
+    return run_tool("plot.py", *args)
 
 
 def _assert_usage_error(result: subprocess.CompletedProcess, fragment: str) -> None:

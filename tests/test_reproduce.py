@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import REPO_ROOT, load_tool, tool_env
+from conftest import REPO_ROOT, load_tool, run_tool, tool_env
 from scipy import stats
 
 from pipeline import reproduction
@@ -35,13 +35,7 @@ REDONE = ("nonsmooth", 1)  # this run's eval.json is deleted before the second r
 
 def run_reproduce(*args: str) -> tuple[subprocess.CompletedProcess, float]:
     started = time.perf_counter()
-    done = subprocess.run(
-        [sys.executable, str(REPO_ROOT / "tools" / "reproduce.py"), *args],
-        capture_output=True,
-        text=True,
-        env=tool_env(),
-        timeout=400,
-    )
+    done = run_tool("reproduce.py", *args, timeout=400)
     return done, time.perf_counter() - started
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import REPO_ROOT, load_tool, tool_env
+from conftest import REPO_ROOT, load_tool, run_tool, tool_env
 from test_training import write_braking_dataset
 
 TINY = ["--embed-dim", "8", "--edge-hidden", "8", "--node-hidden", "12", "--attn-dim", "4"]
@@ -37,16 +37,6 @@ NPZ_KEYS = {
     "num_observed",
     "dt",
 }
-
-
-def run_tool(name: str, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, str(REPO_ROOT / "tools" / name), *map(str, args)],
-        capture_output=True,
-        text=True,
-        env=tool_env(),
-        timeout=120,
-    )
 
 
 @pytest.fixture(scope="module")
