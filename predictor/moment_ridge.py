@@ -43,16 +43,16 @@ def fit_moment_ridge(
         weights = np.ones(len(mean))
     elif not np.all(weights > 0):
         raise ValueError("fit_moment_ridge: sample weights must be positive")
-    stats = _group_statistics(mean, moment, target, weights, inverse, len(names))
+    stats = group_statistics(mean, moment, target, weights, inverse, len(names))
     # one BLAS thread, as fit_ridge_cv (predictor.baselines): the solves are small (15 alphas
     # x 5 folds per map), and OpenBLAS's default threads compete with the trainings beside
     # it. On 2 cores with two trainings running, a refit of the agent preset on Halting Car
     # v1's 52 training scenes took 7.5-9.1 s with them and 5.9-6.6 s with one
     with threadpool_limits(limits=1):
-        return _cross_validated(mean, target, weights, inverse, stats, alphas, folds)
+        return cross_validated(mean, target, weights, inverse, stats, alphas, folds)
 
 
-def _cross_validated(
+def cross_validated(
     mean: np.ndarray,
     target: np.ndarray,
     weights: np.ndarray,
@@ -61,8 +61,9 @@ def _cross_validated(
     alphas: tuple[float, ...],
     folds: int,
 ) -> tuple[np.ndarray, np.ndarray, float]:
-    """`fit_moment_ridge`'s alpha search and final fit from the per-group statistics; inverse
-    (K,) is each sample's group index."""
+    """`fit_moment_ridge`'s alpha search and final fit from the per-group statistics
+    (`group_statistics`); inverse (K,) is each sample's group index. The caller limits the
+    BLAS threads (see fit_moment_ridge)."""
     fold_of_group = _group_folds(np.bincount(inverse), min(folds, len(stats[0])))
     scores = np.zeros(len(alphas))
     for fold in range(fold_of_group.max() + 1):
@@ -78,7 +79,7 @@ def _cross_validated(
     return coef, intercept, best
 
 
-def _group_statistics(
+def group_statistics(
     mean: np.ndarray,
     moment: np.ndarray,
     target: np.ndarray,
@@ -97,7 +98,7 @@ def _group_statistics(
     sorted_group = group[order]
     starts = np.flatnonzero(np.r_[True, sorted_group[1:] != sorted_group[:-1]])
     if len(starts) != count:
-        raise ValueError("_group_statistics: every group needs at least one sample")
+        raise ValueError("group_statistics: every group needs at least one sample")
     w = weights[order]
     weighted_x = w[:, None] * mean[order]  # (n, F)
     samples = np.add.reduceat(w, starts)

@@ -12,10 +12,14 @@ from predictor.agent_frame import agent_frames
 from predictor.config import ModelConfig, make_configs
 from predictor.highway import (
     CROSS_FIT_FOLDS,
+    HIGHWAY_ALPHAS,
     attended_changes,
     change_bounds,
     edge_relations,
+    fit_cross_fitted,
     fit_highway,
+    fit_highway_subsets,
+    fold_of,
     future_offsets,
     history_features,
     neighbour_features,
@@ -75,6 +79,54 @@ def test_fit_recovers_an_exact_linear_map_as_per_step_velocity_changes():
     torch.testing.assert_close(
         change[:, :, num_pred:], change[:, :, num_pred - 1 :][:, :, :1].expand(-1, -1, 2, -1)
     )
+
+
+@pytest.mark.parametrize("with_moments", [False, True])
+def test_cross_fitted_maps_equal_fits_on_each_folds_scenes_alone(with_moments):
+    # the per-scene sums are computed once for the six fits; each must be bit-identical to
+    # fitting the scenes it keeps on their own (sliced tensors, groups renumbered), alphas
+    # included. Noisy targets put the alphas inside the grid, where the folds decide them.
+    gen = torch.Generator().manual_seed(3)
+    scenes, agents, num_features, num_pred = 23, 4, 5, 3
+    features = torch.randn(scenes, agents, num_features, generator=gen, dtype=torch.float64)
+    mix = 0.3 * torch.randn(num_features, num_pred, 2, generator=gen, dtype=torch.float64)
+    noise = 2.0 * torch.randn(scenes, agents, num_pred, 2, generator=gen, dtype=torch.float64)
+    offsets = (torch.einsum("bnf,fkc->bnkc", features, mix) + noise).float()
+    usable = torch.rand(scenes, agents, generator=gen) > 0.2
+    roles = torch.randint(0, 2, (scenes, agents), generator=gen)
+    moments = weights = None
+    if with_moments:  # rows around each sample's mean: E[x x^T] = x x^T + a PSD spread
+        spread = torch.randn(scenes, agents, num_features, 2, generator=gen, dtype=torch.float64)
+        outer = features.unsqueeze(-1) * features.unsqueeze(-2)
+        moments = (outer + spread @ spread.transpose(-1, -2)).float()
+        weights = 0.1 + torch.rand(scenes, agents, generator=gen, dtype=torch.float64).float()
+    features = features.float()
+    fold = fold_of(torch.arange(scenes), CROSS_FIT_FOLDS)
+    subsets = [torch.ones(scenes, dtype=torch.bool)] + [fold != k for k in range(5)]
+    together = fit_highway_subsets(
+        features, offsets, usable, roles, 2, 4, subsets, moments, weights
+    )
+    inside = 0
+    for keep, (weight, bias, alphas) in zip(subsets, together, strict=True):
+        alone = fit_highway(
+            features[keep],
+            offsets[keep],
+            usable[keep],
+            roles[keep],
+            2,
+            4,
+            None if moments is None else moments[keep],
+            None if weights is None else weights[keep],
+        )
+        assert alphas == alone[2] and set(alphas) == {0, 1}
+        assert torch.equal(weight, alone[0]) and torch.equal(bias, alone[1])
+        inside += sum(min(HIGHWAY_ALPHAS) < a < max(HIGHWAY_ALPHAS) for a in alphas.values())
+    assert inside >= 6  # the check can see a wrong fold assignment
+    # fit_cross_fitted returns these six fits
+    cross = fit_cross_fitted(features, offsets, usable, roles, 2, 4, moments, weights)
+    assert torch.equal(cross[0], together[0][0]) and torch.equal(cross[1], together[0][1])
+    assert torch.equal(cross[2], torch.stack([w for w, _, _ in together[1:]]))
+    assert torch.equal(cross[3], torch.stack([b for _, b, _ in together[1:]]))
 
 
 def test_a_role_with_one_training_scene_keeps_constant_velocity():
