@@ -7,20 +7,18 @@ training seeds 0..k-1 and evaluated from its best.pt (lowest validation ADE of t
 on the test split; `const_vel` is evaluated once per setting (deterministic). `reproduce(...)`
 runs what the cache lacks and writes the report (pipeline.report).
 
-Cache (`out_dir`): `data/<stem>.h5` per dataset (the stem names every generator input) and
-`runs/<stem>/<variant>/seed<k>_ep<E>_<hash>/` per run (train's files plus `eval.json`, written
-last and atomically, and for seed 0 of ours and s_attn `scenes.npz`, the predictions of the
-figure scenes). A run with its eval.json is reused; a run with last.pt resumes (bit-identical to
-an uninterrupted one). Identical inputs share one cache entry. `invocations.jsonl` logs every
-invocation that ran jobs (date, command, wall seconds), for the report's wall time. The keys
-hash the scenario, model and training configurations (a changed default starts new runs) but
-not the code: delete the cache after changing how experts, model or training behave.
+Cache (`out_dir`): `data/<stem>.h5` per dataset and `runs/<stem>/<variant>/seed<k>_ep<E>_<hash>/`
+per run (pipeline.run_plan names them): train's files plus `eval.json`, written last and
+atomically, and for seed 0 of ours and s_attn `scenes.npz`, the predictions of the figure
+scenes. A run with its eval.json is reused; a run with last.pt resumes (bit-identical to an
+uninterrupted one). `invocations.jsonl` logs every invocation that ran jobs (date, command,
+wall seconds), for the report's wall time. The keys do not hash the code: delete the cache
+after changing how experts, model or training behave.
 
-Results store (`store`, optional): each finished run's eval.json (and scenes.npz for the
-figure runs), no checkpoints, under the same relative path as under `runs/`. A job whose
-results are in the cache or the store is not run again; the report reads both. Meant to be
-committed, so a protocol can be completed over several sittings or machines. A time budget
-(`budget_s`) starts no run after it expires; running ones finish, the rest wait for a rerun.
+Results store (`store`, optional; pipeline.result_store): each finished run's eval.json (and
+scenes.npz), committed, so a protocol can be completed over several sittings or machines. A
+time budget (`budget_s`) starts no run after it expires; running ones finish, the rest wait
+for a rerun.
 
 Backends (`backend`): "local" runs `jobs` spawned processes here (pipeline.pool); "ray" runs
 each missing dataset and each job as a Ray task of `RUN_THREADS` CPUs on the cluster at
@@ -43,7 +41,6 @@ completed epoch and a rerun resumes it.
 from __future__ import annotations
 
 import datetime
-import hashlib
 import json
 import time
 from dataclasses import asdict, dataclass
@@ -53,65 +50,30 @@ import numpy as np
 
 from pipeline.backends import Runner
 from pipeline.files import atomic_output
-from pipeline.generation import GenerateConfig, UnsafeExpertError, generate_dataset
+from pipeline.generation import UnsafeExpertError, generate_dataset
 from pipeline.pool import check_stop
-from pipeline.protocol import (
-    Protocol,
-    ReproductionError,
-    Setting,
+from pipeline.protocol import Protocol
+from pipeline.report.records import BASELINES
+from pipeline.result_store import (
+    collect,
+    keep_result,
+    read_eval,
+    result_dir,
+    scene_files,
 )
-from pipeline.report.records import BASELINES, RunRecord
+from pipeline.run_plan import (
+    RUN_THREADS,
+    DataSpec,
+    Job,
+    data_path,
+    data_spec,
+    run_configs,
+    setting_jobs,
+    unique,
+)
 
-FIGURE_VARIANTS = ("ours", "s_attn")  # their first seed keeps predictions of the figure scenes
-DEFAULT_STORE = "results"  # the results store tools/reproduce.py keeps (tracked: commit it)
 INVOCATION_LOG = "invocations.jsonl"  # in the cache: date, command, wall seconds, jobs run
-RUN_THREADS = 1  # torch threads of a training/evaluation job: a Ray task asks for this many CPUs
 RAY_RETRIES = 1  # a Ray task whose worker dies is run once more; dying twice fails the job
-
-
-@dataclass(frozen=True)
-class DataSpec:
-    """The generator inputs of one dataset."""
-
-    scenario: str
-    major_case: str
-    num_major: int
-    num_minor: int
-    num_test: int
-    seed: int
-    scenario_digest: str  # of the scenario's configuration (a changed default changes the key)
-
-    @property
-    def stem(self) -> str:
-        return (
-            f"{self.scenario}_{self.major_case}-major_{self.num_minor}+{self.num_major}"
-            f"_test{self.num_test}_seed{self.seed}_{self.scenario_digest}"
-        )
-
-    def config(self) -> GenerateConfig:
-        """The generator configuration (validated)."""
-        return GenerateConfig.for_scenario(
-            self.scenario,
-            major_case=self.major_case,
-            num_major=self.num_major,
-            num_minor=self.num_minor,
-            num_test=self.num_test,
-            seed=self.seed,
-        )
-
-
-@dataclass(frozen=True)
-class Job:
-    """Train (unless the baseline) and evaluate one (dataset, variant, seed)."""
-
-    data_path: str
-    variant: str
-    seed: int  # training seed (0 for the baseline: unused)
-    epochs: int
-    run_dir: str
-    save_scenes: bool  # keep predictions of the figure scenes (scenes.npz)
-    store_dir: str = ""  # where the results store keeps its eval.json (and scenes.npz); "" none
-    preset: str = "paper"  # predictor.config.PRESETS
 
 
 @dataclass(frozen=True)
@@ -122,88 +84,6 @@ class JobOutcome:
     status: str
     seconds: float
     error: str = ""
-
-
-# ---------------------------------------------------------------------------------- planning
-def digest(value: object) -> str:
-    """Short stable hash of a JSON-able value (cache keys)."""
-    text = json.dumps(value, sort_keys=True, default=str)
-    return hashlib.sha1(text.encode()).hexdigest()[:8]
-
-
-def data_spec(protocol: Protocol, setting: Setting) -> DataSpec:
-    """The dataset a setting uses under a protocol."""
-    from scenarios import SCENARIOS
-
-    num_major, num_minor = protocol.counts(setting)
-    config = asdict(SCENARIOS[setting.scenario]().config)
-    return DataSpec(
-        setting.scenario,
-        setting.major_case,
-        num_major,
-        num_minor,
-        protocol.num_test,
-        protocol.data_seed,
-        digest(config),
-    )
-
-
-def run_configs(variant: str, seed: int, epochs: int, preset: str = "paper") -> tuple:
-    """(ModelConfig, TrainConfig) of a run: the preset's configuration, one torch thread."""
-    from predictor.config import make_configs
-
-    return make_configs(variant, None, preset=preset, seed=seed, epochs=epochs, threads=RUN_THREADS)
-
-
-def data_path(out_dir: Path, spec: DataSpec) -> Path:
-    """Where the cache keeps a dataset."""
-    return out_dir / "data" / f"{spec.stem}.h5"
-
-
-def run_dir(
-    out_dir: Path, spec: DataSpec, variant: str, seed: int, epochs: int, preset: str = "paper"
-) -> Path:
-    """runs/<stem>/<variant>/seed<k>_ep<E>_<digest of the model and training configs>."""
-    from predictor.stored_config import config_key
-
-    base = out_dir / "runs" / spec.stem / variant
-    if variant in BASELINES:
-        return base
-    configs = [config_key(c) for c in run_configs(variant, seed, epochs, preset)]
-    return base / f"seed{seed}_ep{epochs}_{digest(configs)}"
-
-
-def setting_jobs(
-    protocol: Protocol, setting: Setting, out_dir: Path, store: Path | None = None
-) -> list[Job]:
-    """The jobs of one setting, in variant then seed order; with a results `store`, each job
-    keeps its results under the same relative path there as under out_dir/runs."""
-    spec = data_spec(protocol, setting)
-    path = str(data_path(out_dir, spec))
-    jobs = []
-    for variant in protocol.variants:
-        for seed in [0] if variant in BASELINES else range(protocol.seeds):
-            directory = run_dir(out_dir, spec, variant, seed, protocol.epochs, protocol.preset)
-            kept = "" if store is None else str(store / directory.relative_to(out_dir / "runs"))
-            save_scenes = variant in FIGURE_VARIANTS and seed == 0
-            jobs.append(
-                Job(
-                    path,
-                    variant,
-                    seed,
-                    protocol.epochs,
-                    str(directory),
-                    save_scenes,
-                    kept,
-                    protocol.preset,
-                )
-            )
-    return jobs
-
-
-def unique(items: list) -> list:
-    """Items in first-seen order without repeats (settings may share data or runs)."""
-    return list(dict.fromkeys(items))
 
 
 # ---------------------------------------------------------------------------------- jobs
@@ -314,81 +194,6 @@ def _train_seconds(metrics: Path) -> float:
     """Training wall time summed over the run's epochs (across resumes)."""
     lines = metrics.read_text().splitlines() if metrics.is_file() else []
     return float(sum(json.loads(line)["seconds"] for line in lines if line.strip()))
-
-
-# ---------------------------------------------------------------------------------- the cache
-def result_dir(job: Job) -> Path | None:
-    """Where the job's finished results are: its run directory if it has an eval.json, else
-    the results store if that has one, else None (the job must run)."""
-    for directory in (job.run_dir, job.store_dir):
-        if directory and (Path(directory) / "eval.json").is_file():
-            return Path(directory)
-    return None
-
-
-def read_eval(job: Job) -> dict | None:
-    """The job's eval.json (from the cache, else the results store) if it exists and belongs
-    to the job (None: the job must run); ReproductionError for an unreadable or foreign one."""
-    directory = result_dir(job)
-    if directory is None:
-        return None
-    path = directory / "eval.json"
-    try:
-        result = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
-        message = f"cannot read cached {path} ({err}); delete it to redo that run"
-        raise ReproductionError(message) from None
-    want = {"variant": job.variant, "seed": job.seed}
-    if any(result.get(k) != v for k, v in want.items()):
-        raise ReproductionError(
-            f"cached {path} is not the result of {want}; delete it to redo that run"
-        )
-    if job.save_scenes and not (directory / "scenes.npz").is_file():
-        return None  # e.g. evaluated by hand: redo the evaluation to get the figure scenes
-    return result
-
-
-def keep_result(job: Job) -> bool:
-    """Copy a finished job's eval.json (and scenes.npz) from its run directory into the results
-    store, atomically, eval.json last; True if something was copied."""
-    if not job.store_dir or read_eval(job) is None:
-        return False
-    source, store = Path(job.run_dir), Path(job.store_dir)
-    if not (source / "eval.json").is_file() or (store / "eval.json").is_file():
-        return False
-    store.mkdir(parents=True, exist_ok=True)
-    names = ["scenes.npz"] if job.save_scenes else []
-    for name in [*names, "eval.json"]:
-        with atomic_output(store / name) as temp:
-            temp.write_bytes((source / name).read_bytes())
-    return True
-
-
-def collect(protocol: Protocol, out_dir: Path, store: Path | None = None) -> tuple[RunRecord, ...]:
-    """One record per (setting, variant, seed) whose eval.json exists (cache or store)."""
-    records = []
-    for setting in protocol.settings:
-        for job in setting_jobs(protocol, setting, out_dir, store):
-            result = read_eval(job)
-            if result is not None:
-                records.append(RunRecord.from_eval(setting.name, job.variant, job.seed, result))
-    return tuple(records)
-
-
-def scene_files(
-    protocol: Protocol, out_dir: Path, store: Path | None = None
-) -> dict[str, dict[str, str]]:
-    """setting -> {variant: scenes.npz} for settings where every FIGURE_VARIANTS file exists."""
-    found = {}
-    for setting in protocol.settings:
-        jobs = setting_jobs(protocol, setting, out_dir, store)
-        files = {}
-        for job in jobs:
-            if job.variant in FIGURE_VARIANTS and job.seed == 0 and read_eval(job) is not None:
-                files[job.variant] = str(result_dir(job) / "scenes.npz")
-        if set(files) == set(FIGURE_VARIANTS):
-            found[setting.name] = files
-    return found
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,8 @@ from pipeline.ray_backend import (
     map_settled,
     ray_session,
 )
-from pipeline.reproduction import execute, setting_jobs
+from pipeline.reproduction import execute
+from pipeline.run_plan import setting_jobs
 
 ray = pytest.importorskip("ray")
 

@@ -19,7 +19,7 @@ import pytest
 from conftest import REPO_ROOT, load_tool, run_tool, tool_env
 from scipy import stats
 
-from pipeline import reproduction
+from pipeline import reproduction, result_store, run_plan
 from pipeline.protocol import GROUPS, SETTING_BY_NAME, Protocol, ReproductionError, pick
 from predictor.evaluation import read_checkpoint
 
@@ -331,19 +331,19 @@ def test_interrupt_stops_at_a_safe_point_and_the_rerun_resumes(tmp_path, how, jo
 def test_cached_results_are_checked_before_use(tmp_path):
     setting = SETTING_BY_NAME["hc_go"]
     protocol = Protocol((setting,), ("ours",), 1, 3)
-    job = reproduction.setting_jobs(protocol, setting, tmp_path)[0]
-    assert reproduction.read_eval(job) is None  # not run yet
+    job = run_plan.setting_jobs(protocol, setting, tmp_path)[0]
+    assert result_store.read_eval(job) is None  # not run yet
     Path(job.run_dir).mkdir(parents=True)
     (Path(job.run_dir) / "eval.json").write_text("{not json")
     with pytest.raises(ReproductionError, match="cannot read cached"):
-        reproduction.read_eval(job)
+        result_store.read_eval(job)
     (Path(job.run_dir) / "eval.json").write_text(json.dumps({"variant": "s_attn", "seed": 0}))
     with pytest.raises(ReproductionError, match="is not the result of"):
-        reproduction.read_eval(job)
+        result_store.read_eval(job)
     (Path(job.run_dir) / "eval.json").write_text(json.dumps({"variant": "ours", "seed": 0}))
-    assert reproduction.read_eval(job) is None  # seed 0 of ours also needs its scenes.npz
+    assert result_store.read_eval(job) is None  # seed 0 of ours also needs its scenes.npz
     (Path(job.run_dir) / "scenes.npz").write_bytes(b"")
-    assert reproduction.read_eval(job) == {"variant": "ours", "seed": 0}
+    assert result_store.read_eval(job) == {"variant": "ours", "seed": 0}
 
 
 # ---------------------------------------------------------------------------------- planning
@@ -367,7 +367,7 @@ def test_quick_caps_the_major_count_and_keeps_small_settings():
 def test_jobs_cover_every_variant_and_seed(tmp_path):
     setting = SETTING_BY_NAME["hc_go"]
     protocol = Protocol((setting,), VARIANTS, 3, 7)
-    jobs = reproduction.setting_jobs(protocol, setting, tmp_path)
+    jobs = run_plan.setting_jobs(protocol, setting, tmp_path)
     assert len(jobs) == 5 * 3 + len(BASELINE_VARIANTS)
     assert {(j.variant, j.seed) for j in jobs if j.save_scenes} == {("ours", 0), ("s_attn", 0)}
     data = Path(jobs[0].data_path)
@@ -385,24 +385,22 @@ def test_jobs_cover_every_variant_and_seed(tmp_path):
 def test_cache_keys_change_with_the_configs(tmp_path):
     setting = SETTING_BY_NAME["dm_r0.3"]
     protocol = Protocol((setting,), ("ours",), 1, 5)
-    spec = reproduction.data_spec(protocol, setting)
-    other = dataclasses.replace(spec, scenario_digest=reproduction.digest({"changed": 1}))
+    spec = run_plan.data_spec(protocol, setting)
+    other = dataclasses.replace(spec, scenario_digest=run_plan.digest({"changed": 1}))
     assert spec.stem != other.stem
 
     def key(variant: str, seed: int, epochs: int) -> str:
-        return reproduction.run_dir(tmp_path, spec, variant, seed, epochs).name.split("_")[-1]
+        return run_plan.run_dir(tmp_path, spec, variant, seed, epochs).name.split("_")[-1]
 
     keys = {key("ours", 0, 5), key("nonsmooth", 0, 5), key("ours", 1, 5), key("ours", 0, 6)}
     assert len(keys) == 4 and key("ours", 0, 5) == key("ours", 0, 5)
-    agent = reproduction.run_dir(tmp_path, spec, "ours", 0, 5, "agent").name.split("_")[-1]
+    agent = run_plan.run_dir(tmp_path, spec, "ours", 0, 5, "agent").name.split("_")[-1]
     assert agent not in keys  # another preset is another run
-    job = reproduction.setting_jobs(
-        dataclasses.replace(protocol, preset="agent"), setting, tmp_path
-    )
+    job = run_plan.setting_jobs(dataclasses.replace(protocol, preset="agent"), setting, tmp_path)
     assert job[0].preset == "agent" and job[0].run_dir.endswith(agent)
-    model_cfg, train_cfg = reproduction.run_configs("ours", 0, 5, "agent")
+    model_cfg, train_cfg = run_plan.run_configs("ours", 0, 5, "agent")
     assert model_cfg.frame == "agent" and train_cfg.epochs == 5 and train_cfg.threads == 1
-    assert reproduction.digest({"a": 1, "b": 2}) == reproduction.digest({"b": 2, "a": 1})
+    assert run_plan.digest({"a": 1, "b": 2}) == run_plan.digest({"b": 2, "a": 1})
 
 
 def test_figure_scenes_pick_the_first_interacting_scene_per_case():

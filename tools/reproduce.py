@@ -40,7 +40,7 @@ regenerated in seconds). `--budget-minutes M` starts no run after M minutes; the
 finish, the report covers what is done, and the same command later continues.
 
 Cache (`--out-dir`, default outputs/reproduce): datasets and runs, keyed by every input (see
-pipeline/reproduction.py). A run with its eval.json is reused; a run with last.pt resumes
+pipeline/run_plan.py). A run with its eval.json is reused; a run with last.pt resumes
 (bit-identical to an uninterrupted one); Ctrl-C stops every job at its next safe point (exit
 130) and a rerun of the same command continues. `invocations.jsonl` logs every invocation that
 ran jobs (date, command, wall seconds), for the report's wall time. Delete the cache after
@@ -92,7 +92,8 @@ from pipeline.protocol import (
     pick,
 )
 from pipeline.ray_backend import RayUnavailableError
-from pipeline.reproduction import DEFAULT_STORE, reproduce
+from pipeline.reproduction import reproduce
+from pipeline.result_store import DEFAULT_STORE
 from predictor.config import DEFAULT_PRESET, PRESETS
 
 

@@ -1,0 +1,148 @@
+"""The plan of a reproduction: which datasets and runs a protocol needs, and where the cache
+keeps them (pipeline.reproduction runs them).
+
+Cache keys: `data/<stem>.h5` per dataset (the stem names every generator input, the scenario's
+configuration by its digest) and `runs/<stem>/<variant>/seed<k>_ep<E>_<hash>/` per run, the hash
+of the model and training configurations (a changed default starts new runs; the code is not
+hashed). Identical inputs share one cache entry.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from pipeline.generation import GenerateConfig
+from pipeline.protocol import Protocol, Setting
+from pipeline.report.records import BASELINES
+
+FIGURE_VARIANTS = ("ours", "s_attn")  # their first seed keeps predictions of the figure scenes
+RUN_THREADS = 1  # torch threads of a training/evaluation job: a Ray task asks for this many CPUs
+
+
+@dataclass(frozen=True)
+class DataSpec:
+    """The generator inputs of one dataset."""
+
+    scenario: str
+    major_case: str
+    num_major: int
+    num_minor: int
+    num_test: int
+    seed: int
+    scenario_digest: str  # of the scenario's configuration (a changed default changes the key)
+
+    @property
+    def stem(self) -> str:
+        return (
+            f"{self.scenario}_{self.major_case}-major_{self.num_minor}+{self.num_major}"
+            f"_test{self.num_test}_seed{self.seed}_{self.scenario_digest}"
+        )
+
+    def config(self) -> GenerateConfig:
+        """The generator configuration (validated)."""
+        return GenerateConfig.for_scenario(
+            self.scenario,
+            major_case=self.major_case,
+            num_major=self.num_major,
+            num_minor=self.num_minor,
+            num_test=self.num_test,
+            seed=self.seed,
+        )
+
+
+@dataclass(frozen=True)
+class Job:
+    """Train (unless the baseline) and evaluate one (dataset, variant, seed)."""
+
+    data_path: str
+    variant: str
+    seed: int  # training seed (0 for the baseline: unused)
+    epochs: int
+    run_dir: str
+    save_scenes: bool  # keep predictions of the figure scenes (scenes.npz)
+    store_dir: str = ""  # where the results store keeps its eval.json (and scenes.npz); "" none
+    preset: str = "paper"  # predictor.config.PRESETS
+
+
+def digest(value: object) -> str:
+    """Short stable hash of a JSON-able value (cache keys)."""
+    text = json.dumps(value, sort_keys=True, default=str)
+    return hashlib.sha1(text.encode()).hexdigest()[:8]
+
+
+def data_spec(protocol: Protocol, setting: Setting) -> DataSpec:
+    """The dataset a setting uses under a protocol."""
+    from scenarios import SCENARIOS
+
+    num_major, num_minor = protocol.counts(setting)
+    config = asdict(SCENARIOS[setting.scenario]().config)
+    return DataSpec(
+        setting.scenario,
+        setting.major_case,
+        num_major,
+        num_minor,
+        protocol.num_test,
+        protocol.data_seed,
+        digest(config),
+    )
+
+
+def run_configs(variant: str, seed: int, epochs: int, preset: str = "paper") -> tuple:
+    """(ModelConfig, TrainConfig) of a run: the preset's configuration, one torch thread."""
+    from predictor.config import make_configs
+
+    return make_configs(variant, None, preset=preset, seed=seed, epochs=epochs, threads=RUN_THREADS)
+
+
+def data_path(out_dir: Path, spec: DataSpec) -> Path:
+    """Where the cache keeps a dataset."""
+    return out_dir / "data" / f"{spec.stem}.h5"
+
+
+def run_dir(
+    out_dir: Path, spec: DataSpec, variant: str, seed: int, epochs: int, preset: str = "paper"
+) -> Path:
+    """runs/<stem>/<variant>/seed<k>_ep<E>_<digest of the model and training configs>."""
+    from predictor.stored_config import config_key
+
+    base = out_dir / "runs" / spec.stem / variant
+    if variant in BASELINES:
+        return base
+    configs = [config_key(c) for c in run_configs(variant, seed, epochs, preset)]
+    return base / f"seed{seed}_ep{epochs}_{digest(configs)}"
+
+
+def setting_jobs(
+    protocol: Protocol, setting: Setting, out_dir: Path, store: Path | None = None
+) -> list[Job]:
+    """The jobs of one setting, in variant then seed order; with a results `store`, each job
+    keeps its results under the same relative path there as under out_dir/runs."""
+    spec = data_spec(protocol, setting)
+    path = str(data_path(out_dir, spec))
+    jobs = []
+    for variant in protocol.variants:
+        for seed in [0] if variant in BASELINES else range(protocol.seeds):
+            directory = run_dir(out_dir, spec, variant, seed, protocol.epochs, protocol.preset)
+            kept = "" if store is None else str(store / directory.relative_to(out_dir / "runs"))
+            save_scenes = variant in FIGURE_VARIANTS and seed == 0
+            jobs.append(
+                Job(
+                    path,
+                    variant,
+                    seed,
+                    protocol.epochs,
+                    str(directory),
+                    save_scenes,
+                    kept,
+                    protocol.preset,
+                )
+            )
+    return jobs
+
+
+def unique(items: list) -> list:
+    """Items in first-seen order without repeats (settings may share data or runs)."""
+    return list(dict.fromkeys(items))
