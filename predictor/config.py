@@ -122,112 +122,71 @@ class ModelConfig:
     # its weight (~1/21); a gain makes the same parameter step move the scores further (as
     # log_std_gain does for the stds). 1: the paper's scores.
     attention_gain: float = 1.0
-    # A linear autoregressive highway (predictor.highway, as LSTNet's): a map from the agent's
-    # last `highway_steps` observed velocities (agent frame) to its velocity changes over the
-    # rollout, fitted in closed form on the training split (ridge, alpha by grouped
-    # cross-validation, one per role) and added to the anchored rollout's prior, so the network
-    # learns what the agent's own history does not explain. Measured, the network alone did
-    # not learn the linear extrapolation of a manoeuvre (teacher-forced one-step error at
-    # constant velocity's level, 12.4-12.8 against 13.0 mm; ridge on 12 velocities: 2 mm at
-    # the first predicted step). 0: off. Needs rollout_prior "anchored".
+    # A linear autoregressive highway (predictor.highway, as LSTNet's): a ridge map from the
+    # agent's last `highway_steps` observed velocities (agent frame) to its velocity changes
+    # over the rollout, fitted in closed form on the training split and added to the anchored
+    # rollout's prior; the network learns what the agent's own history does not explain (alone
+    # it never learnt to extrapolate a manoeuvre; docs/PREDICTOR.md). 0: off. Needs
+    # rollout_prior "anchored".
     highway_steps: int = 0
     # Predicted steps the highway covers (later steps repeat its last velocity change); the
     # scenarios predict 45 steps.
     highway_horizon: int = 45
     # The highway also reads the attended agents (predictor.highway.neighbour_features): a
-    # linear map per role, learnt by gradient from zero, from sum_j theta_ij z_ij to velocity
-    # changes, where z_ij is agent j's position relative to i and its velocities over the
-    # highway's steps (i's frame, standardised on the training split) and theta the attention
-    # at the last observed step. What ridge gains from the labelled car is linear in these
-    # features (Double Merge v1: 1.72 -> 1.37 m); through this path the attention gets the
-    # gradient of a linear model of the attended car. Needs highway_steps.
+    # linear map per role from sum_j theta_ij z_ij to velocity changes, z_ij agent j's relative
+    # position and velocities (i's frame, standardised), theta the attention at the last
+    # observed step; the attention then gets the gradient of a linear model of the attended
+    # car, where ridge's gain from the labelled car lies. Needs highway_steps.
     highway_attended: bool = False
-    # The attended map (with the own-history map, jointly) refitted in closed form at the
-    # start of every epoch instead of learnt by gradient: ridge (alpha by grouped
-    # cross-validation, one per role, cross-fitted as the highway) of the future offsets on
-    # the own features and sum_j theta_ij z_ij, with theta the current model's attention at the
-    # last observed step on the training scenes. Within an epoch the maps are fixed and the
-    # attention gets the gradient of the best linear read-out of what it attends to; learnt
-    # from zero, the map read the uniform average (Double Merge v1, Correct: main-car test ADE
-    # 1.714 m learnt, 1.494 m refitted; ridge on the labelled car 1.369 m). On in the agent
-    # preset (with highway_relation and attended_fit "edge_relations"; measured seeds in
-    # docs/PREDICTOR.md). Needs highway_attended.
+    # The attended map (jointly with the own-history map) refitted in closed form at the start
+    # of every epoch instead of learnt by gradient (ridge, cross-fitted as the highway), with
+    # the current attention at the last observed step on the training scenes: within an epoch
+    # the attention gets the gradient of the best linear read-out of what it attends to (learnt
+    # from zero, the map read the uniform average). Needs highway_attended.
     attended_refit: bool = False
     # What attended_refit regresses on: "mean", the attention-weighted mean sum_j theta_ij z_ij
-    # of the edge features; "edges", each edge (own_i, z_ij) as a row of its own with weight
-    # theta_ij (predictor.moment_ridge). The rollout reads the same sum_j theta_ij z_ij either
-    # way; what differs is the scale the map is fitted for. Fitted on the mean, the map reads
-    # whatever attention it is fitted with: under uniform attention on Halting Car v1 it
-    # rescaled the leader's 1/21 share of the average (untrained main-car test ADE 7.592 m
-    # uniform, 7.332 m with the labelled car), so focusing the attention gained nothing within
-    # an epoch and overshot the map's scale. Fitted per edge, the map is a per-neighbour
-    # reading, weak while the attention is spread (11.723 m there) and the mean fit's equal
-    # under one-hot attention, so moving the attention to the car that explains the future
-    # lowers the loss (tests/test_highway.py). "edge_relations": "edges" with each edge read by
-    # the map of its own relation (the other agent ahead of or behind the agent, see
-    # highway_relation) instead of one relation per agent from the attention-weighted mean
-    # position, which under spread attention is the distractors' side, not the attended car's;
-    # the rollout mixes the two relations' readings by their share of the attention
-    # (predictor.highway.edge_relations); the agent preset's. Needs highway_relation. Needs
-    # attended_refit.
+    # of the edge features, which reads whatever attention it was fitted with (under uniform
+    # attention it rescaled the leader's 1/21 share, so focusing gained nothing); "edges", each
+    # edge (own_i, z_ij) as a row of its own with weight theta_ij (predictor.moment_ridge), a
+    # per-neighbour reading, so attending to the car that explains the future lowers the loss;
+    # "edge_relations", "edges" with each edge read by the map of its own relation (ahead of or
+    # behind the agent), the relations' readings mixed by their share of the attention
+    # (predictor.highway.edge_relations). Needs attended_refit ("edge_relations":
+    # highway_relation).
     attended_fit: str = "mean"
     # The highway's maps (own and attended) chosen per role *and* per relation to the attended
-    # agents: whether they lie ahead of the agent or behind it (the sign of sum_j theta_ij x_ij,
-    # their attention-weighted longitudinal position in the agent's frame, at the last observed
-    # step), twice the maps. A follower reads its leader differently from how a leader reads its
-    # follower, and one linear map per role cannot do both where a role is ahead in one case
-    # and behind in the other (Double Merge's colours): ridge with the labelled car, test ADE
-    # of the main cars 1.369 m with one map per colour, 0.822 m per colour and relation. On in
-    # the agent preset with attended_fit "edge_relations" (with the per-agent relation of the
-    # other fits, learned attention made it worse; docs/PREDICTOR.md). Needs attended_refit.
+    # agents, ahead of the agent or behind it (the sign of sum_j theta_ij x_ij in the agent's
+    # frame; per edge under attended_fit "edge_relations"), twice the maps: a follower reads
+    # its leader differently from how a leader reads its follower, and Double Merge's colours
+    # are ahead in one case and behind in the other. Needs attended_refit.
     highway_relation: bool = False
     # Under attended_fit "edge_relations", the edges are also split by the attended agent's
-    # role group: each (group, attended group, relation) has maps of its own, fitted on those
-    # edges alone, as heterogeneous-graph models keep one encoder per edge type. Without it the
-    # map that reads the other main car is fitted on the attention-weighted mix of it and the
-    # distractors on the same side, whose readings carry nothing and dilute the map. Needs
-    # attended_fit "edge_relations"; one kind (as off) without roles. On in the agent preset
-    # with role_balanced_attention (Double Merge v1, 5 seeds: 0.940 m against 1.505 m without
-    # the two; docs/PREDICTOR.md).
+    # role group, each (group, attended group, relation) with maps of its own, as
+    # heterogeneous-graph models keep one encoder per edge type: otherwise the map that reads
+    # the other main car is diluted by the distractors on the same side. One kind (as off)
+    # without roles.
     highway_head_groups: bool = False
     # A learnt bias per pair of roles (attending, attended) added to the learned attention's
     # scores: "this kind of agent attends to that kind" is one parameter whose gradient sums
-    # over every such pair in the data, instead of a pattern the edge LSTM's states must carry
-    # (Double Merge v1, with highway_role_groups "0,0,1": attention accuracy 0.83, weight 0.71
-    # on the other main car; docs/PREDICTOR.md). Ignored without roles (num_roles 0: one kind
-    # of agent, whose one bias the softmax would cancel) and by fixed attention.
-    # On in the agent preset (with attended_fit "edge_relations"; measured seeds in
-    # docs/PREDICTOR.md).
+    # over every such pair in the data, not a pattern the edge LSTM's states must carry.
+    # Ignored without roles (one kind, whose bias the softmax cancels) and by fixed attention.
     role_attention_bias: bool = False
     # Learned attention logits plus -log(number of the attending agent's present neighbours
-    # with the attended agent's role): each role among the neighbours starts with the same
-    # total weight, shared by its agents, not each agent with 1/(N-1). With one other main car
-    # among 20 distractors, uniform scores put 1/2 on the main car instead of 1/21, so the
-    # refitted attended maps read it from the first epoch; the scores can still learn to leave
-    # it. A fixed prior over kinds of neighbour, not a parameter. Ignored without roles and by
-    # fixed attention. On in the agent preset with highway_head_groups (alone it found the
-    # other main car but predicted worse; docs/PREDICTOR.md).
+    # with the attended agent's role): each role among the neighbours starts with one share,
+    # so uniform scores put 1/2, not 1/21, on the one other main car among 20 distractors and
+    # the refitted maps read it from the first epoch; the scores can still learn to leave it.
+    # A fixed prior, not a parameter. Ignored without roles and by fixed attention.
     role_balanced_attention: bool = False
-    # With attended_refit and learned attention: refit the highway's maps with the attention's
-    # prior (equal weights over each agent's usable neighbours, per role with
-    # role_balanced_attention), not with the attention it has learned. Fitted with the learned
-    # attention, a map is fitted on the scenes where the attention chose it, and the attention
-    # can learn to pick maps by scene instead of by which car matters: on Halting Car v1 the
-    # follower put weight 0.00 on the leader in `stop` scenes and 1.00 in `go` scenes, and the
-    # distractor maps were fitted on its `stop` scenes (docs/PREDICTOR.md). Fitted with the
-    # prior, every map sees every scene, and the learned attention only chooses how to mix
-    # readings. The prior does not change, so the maps are fitted once, before the first epoch.
-    # Tried with the agent preset, seed 0: Double Merge v1 0.912 m (preset 1.043 m), Halting
-    # Car v1 `stop` 4.384 m (preset 1.835 m; weight on the leader 0.28). Off.
+    # With attended_refit and learned attention: fit the highway's maps once, before the first
+    # epoch, with the attention's prior (equal weights over each agent's usable neighbours, per
+    # role with role_balanced_attention) instead of every epoch with the learned attention,
+    # under which a map is fitted on the scenes where the attention chose it and the attention
+    # can learn to pick maps by scene (Halting Car v1's switch, docs/PREDICTOR.md).
     refit_on_prior: bool = False
     # With highway_role_groups: the role_attention_bias per pair of role groups (attending,
     # attended) instead of roles, so roles that drive alike also attend alike and pool the
-    # bias's gradient. Double Merge's colours attend each other: per role, the gradient at the
-    # first refit pointed green's bias at brown six times more weakly than brown's at green
-    # (docs/PREDICTOR.md), and after training brown attended green (weight 0.49-0.63) while
-    # green stayed on the distractors (0.02-0.14); one (main, main) bias reads both. Off:
-    # measured, green's attention did not move (0.14-0.19; docs/PREDICTOR.md). Needs
-    # role_attention_bias and highway_role_groups.
+    # bias's gradient (Double Merge's colours). Needs role_attention_bias and
+    # highway_role_groups.
     role_bias_by_group: bool = False
     # Which roles share the highway's maps: comma-separated group per role ("0,0,1": the first
     # two roles pool their maps); "" gives each role its own. Roles that drive alike but swap
