@@ -142,7 +142,7 @@ def fit_highway_subsets(
     sums of the moment fit (`group_statistics`) computed once for all subsets and one BLAS
     thread limit for all the solves. For the cross-fitting's six fits this took the agent
     preset's refit on Halting Car v1's 52 training scenes from 5.4-5.7 s to 3.3-3.4 s (beside
-    three trainings on 2 cores), most of what is left being the 5,472 solves."""
+    three trainings on 2 cores; benchmarks/README.md)."""
     if weights is not None and moments is None:
         raise ValueError("fit_highway: sample weights need moments")
     num_features, num_pred = features.shape[-1], offsets.shape[2]

@@ -316,6 +316,10 @@ class HighwayMaps:
             steps.pos, steps.present, t_obs, rotation, self.config.highway_steps
         )
         edges, mask = self._neighbour_features(steps)
+        # the regression's moments in float64: from float32 products, the centred gram of a
+        # nearly constant feature was rounding noise (standardised, entries as large as the
+        # gram's own and asymmetric; Double Merge 3 + 10), which the ridge then fitted
+        own, edges, theta = own.double(), edges.double(), theta.double()
         slots = self._groups_of(steps.role_index, usable)
         if self.config.attended_fit == "edge_relations":
             slots, masses, attended, second = self._edge_relations(slots, theta, edges, mask, True)

@@ -10,7 +10,7 @@ from sklearn.model_selection import GridSearchCV, GroupKFold
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 
-from predictor.moment_ridge import fit_moment_ridge
+from predictor.moment_ridge import alpha_scores, fit_moment_ridge, group_statistics
 
 ALPHAS = (1e-3, 1e-1, 1.0, 10.0, 1e3)
 
@@ -36,6 +36,46 @@ def test_one_row_per_sample_is_scikit_learns_cross_validated_standardised_ridge(
     assert alpha == search.best_params_["ridge__alpha"]
     expected = search.best_estimator_.predict(x)
     np.testing.assert_allclose(x @ coef + intercept, expected, rtol=1e-8, atol=1e-8)
+
+
+def scores_of(x, moment, y, groups, alphas, folds, weights=None):
+    """alpha_scores on one-sample-per-row inputs, through the per-group sums as the fit uses."""
+    weights = np.ones(len(x)) if weights is None else weights
+    names, inverse = np.unique(groups, return_inverse=True)
+    stats = group_statistics(x, moment, y, weights, inverse, len(names))
+    return alpha_scores(x, y, weights, inverse, stats, alphas, folds)
+
+
+def test_every_alphas_score_is_grid_search_cvs_mean_test_score():
+    # the scores come from one eigendecomposition per fold, not a solve per alpha: each must
+    # still be scikit-learn's held-out mean squared error, averaged over the folds
+    alphas = tuple(np.logspace(-3, 4, 15))
+    x, y, groups = noisy_linear(120, 8, 4, seed=5)
+    scores = scores_of(x, x[:, :, None] * x[:, None, :], y, groups, alphas, folds=5)
+    search = GridSearchCV(
+        make_pipeline(StandardScaler(), Ridge()),
+        {"ridge__alpha": list(alphas)},
+        cv=GroupKFold(n_splits=5),
+        scoring="neg_mean_squared_error",
+    ).fit(x, y, groups=groups)
+    np.testing.assert_allclose(scores, -search.cv_results_["mean_test_score"], rtol=1e-9)
+
+
+def test_identical_training_samples_make_features_constant_and_alphas_tied():
+    # each fold trains on one sample whose weight is not one: E[x^2] - E[x]^2 is then rounding
+    # (~1e-17), not zero. As constant features every alpha predicts the training target, so
+    # the scores are the squared differences of the two targets, tied, and the first alpha wins
+    gen = np.random.default_rng(6)
+    x = gen.normal(size=(2, 5)) * 40.0
+    y = gen.normal(size=(2, 3))
+    weights = np.array([0.49416956178705473, 0.4679919906271712])
+    moment = x[:, :, None] * x[:, None, :]
+    groups = np.array([0, 1])
+    scores = scores_of(x, moment, y, groups, ALPHAS, folds=2, weights=weights)
+    expected = np.mean((y[0] - y[1]) ** 2)
+    np.testing.assert_allclose(scores, expected, rtol=1e-12)
+    _, _, alpha = fit_moment_ridge(x, moment, y, groups, ALPHAS, folds=2, weights=weights)
+    assert alpha == ALPHAS[0]
 
 
 @pytest.mark.parametrize("alpha", [1e-3, 1.0, 100.0])
