@@ -155,6 +155,7 @@ def figure_scenes(case: np.ndarray, interaction: np.ndarray, num_cases: int) -> 
 
 def evaluate_job(job: Job) -> None:
     """Score the run's best.pt (or the baseline) on the test split; eval.json is written last."""
+    from pipeline.report.context import code_version
     from predictor.evaluation import evaluate_baseline, evaluate_run
 
     started = time.perf_counter()
@@ -179,6 +180,7 @@ def evaluate_job(job: Job) -> None:
         "major_case": meta.major_case,
         "case_names": list(meta.case_names),
         "scenes": evaluation.scenes,
+        "code": code_version(),
         **extra,
     }
     if job.save_scenes:

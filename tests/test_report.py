@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import math
+import shutil
+import subprocess
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +49,9 @@ def fake_eval(ade: dict, fde: dict, accuracy: float = 0.5) -> dict:
         "attention_accuracy": acc,
         "train_seconds": 2.0,
     }
+
+
+ADE_FDE = ({"major": 1.0, "minor": 2.0}, {"major": 2.0, "minor": 4.0})
 
 
 def hand_runs() -> list[RunRecord]:
@@ -248,6 +254,44 @@ def test_history_line_sums_the_wall_time():
     assert line.startswith("- Training invocations logged in the cache: 2, 2.5 min wall")
     assert "d1: 1.0 min, 3 runs, `c1`; d2: 1.5 min, 1 runs, `c2`" in line
     assert markdown.history_line(()) == "- Training invocations logged in the cache: none"
+
+
+def test_code_line_counts_runs_per_commit():
+    runs = hand_runs()
+    coded = [replace(run, code=c) for run, c in zip(runs, ["b2", "a1", "b2", None, "a1"])]
+    line = markdown.code_line(coded)
+    assert line == (
+        "- Code (git commit of each run's evaluation): `a1` (2 runs); `b2` (2 runs); "
+        "not recorded (1 runs)"
+    )
+    recorded = RunRecord.from_eval("hc_go", "ours", 0, {**fake_eval(*ADE_FDE), "code": "c3"})
+    assert recorded.code == "c3" and recorded.to_json()["code"] == "c3"
+    assert RunRecord.from_eval("hc_go", "ours", 0, fake_eval(*ADE_FDE)).code is None
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_code_version_is_the_checkouts_commit_and_says_dirty(tmp_path):
+    def git(*args: str) -> str:
+        env = {"GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "HOME": str(tmp_path)}
+        env |= {"GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t", "PATH": "/usr/bin:/bin"}
+        return subprocess.run(
+            ["git", "-C", str(repo), *args], check=True, capture_output=True, text=True, env=env
+        ).stdout.strip()
+
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    assert context.code_version(repo) is None  # not a checkout
+    git("init", "-q")
+    assert context.code_version(repo) is None  # no commit yet
+    (repo / "a.txt").write_text("one\n")
+    git("add", "a.txt")
+    git("commit", "-q", "-m", "first")
+    commit = git("rev-parse", "HEAD")
+    assert context.code_version(repo) == commit[:12]
+    (repo / "new.txt").write_text("untracked files do not count\n")
+    assert context.code_version(repo) == commit[:12]
+    (repo / "a.txt").write_text("two\n")
+    assert context.code_version(repo) == commit[:12] + "+dirty"
 
 
 # ---------------------------------------------------------------------------------- figures

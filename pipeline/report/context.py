@@ -1,9 +1,11 @@
-"""What a report states about where its numbers come from: the machine and the datasets."""
+"""What a report states about where its numbers come from: the machine, the code and the
+datasets."""
 
 from __future__ import annotations
 
 import os
 import platform
+import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,6 +51,31 @@ def machine_info(jobs: int, torch_threads: int = 1) -> MachineInfo:
         python=platform.python_version(),
         platform=platform.platform(),
     )
+
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+
+
+def code_version(root: Path = REPO_ROOT) -> str | None:
+    """The commit the code at `root` is checked out at (12 hex digits), with "+dirty" if
+    tracked files differ from it; None outside a git checkout or without git. Kept in each
+    run's eval.json: a protocol completed over several sittings may span commits, and a
+    reader of the results store should see which code produced each run."""
+
+    def git(*args: str) -> str:
+        done = subprocess.run(
+            ["git", "-C", str(root), *args], capture_output=True, text=True, timeout=30
+        )
+        if done.returncode != 0:
+            raise OSError(done.stderr.strip())
+        return done.stdout.strip()
+
+    try:
+        commit = git("rev-parse", "HEAD")[:12]
+        dirty = git("status", "--porcelain", "--untracked-files=no")
+    except (OSError, subprocess.SubprocessError):  # no git, not a checkout, no commit yet
+        return None
+    return commit + ("+dirty" if dirty else "")
 
 
 @dataclass(frozen=True)

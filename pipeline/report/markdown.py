@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -199,6 +200,16 @@ def history_line(history: Sequence) -> str:
     )
 
 
+def code_line(runs: Sequence) -> str:
+    """Markdown bullet of the commits whose code evaluated the runs, with their run counts."""
+    counts = Counter(run.code for run in runs)
+    known = sorted((code, n) for code, n in counts.items() if code is not None)
+    items = [f"`{code}` ({n} runs)" for code, n in known]
+    if None in counts:
+        items.append(f"not recorded ({counts[None]} runs)")
+    return "- Code (git commit of each run's evaluation): " + ("; ".join(items) or "no runs")
+
+
 def settings_table(report: Report) -> str:
     """Per setting: scenario, cases, split sizes, median training time per run, dataset file."""
     rows = []
@@ -265,6 +276,7 @@ def how_produced(report: Report) -> str:
             f"the training time recorded in all runs sums to {compute_h:.2f} h "
             "(one thread each)",
             history_line(source.history),
+            code_line(report.results.runs),
             f"- Machine: {machine.cores} cores, {machine.cpu_model}; torch "
             f"{machine.torch}, {machine.torch_threads_per_job} torch thread per job, "
             f"{machine.jobs} parallel jobs; Python {machine.python}",

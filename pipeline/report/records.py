@@ -80,6 +80,7 @@ class RunRecord:
     values: Mapping[Measure, float | None]  # every entry of MEASURES; None where not scored
     train_seconds: float | None = None
     best_epoch: int | None = None
+    code: str | None = None  # commit of the code that evaluated it (None: not recorded)
 
     @classmethod
     def from_eval(cls, setting: str, variant: str, seed: int, result: dict) -> RunRecord:
@@ -110,6 +111,7 @@ class RunRecord:
             values,
             result.get("train_seconds"),
             result.get("best_epoch"),
+            result.get("code"),
         )
 
     def to_json(self) -> dict:
@@ -121,6 +123,7 @@ class RunRecord:
             "case_names": {"major": self.case_names.major, "minor": self.case_names.minor},
             "train_seconds": self.train_seconds,
             "best_epoch": self.best_epoch,
+            "code": self.code,
             **nested(self.values),
         }
 
