@@ -23,16 +23,21 @@ def noisy_linear(samples: int, features: int, outputs: int, seed: int):
     return x, y, groups
 
 
+def grid_search(x, y, groups, alphas, folds: int) -> GridSearchCV:
+    """scikit-learn's cross-validated standardised ridge, fitted (the reference)."""
+    return GridSearchCV(
+        make_pipeline(StandardScaler(), Ridge()),
+        {"ridge__alpha": list(alphas)},
+        cv=GroupKFold(n_splits=folds),
+        scoring="neg_mean_squared_error",
+    ).fit(x, y, groups=groups)
+
+
 def test_one_row_per_sample_is_scikit_learns_cross_validated_standardised_ridge():
     x, y, groups = noisy_linear(90, 5, 3, seed=0)
     moment = x[:, :, None] * x[:, None, :]
     coef, intercept, alpha = fit_moment_ridge(x, moment, y, groups, ALPHAS, folds=5)
-    search = GridSearchCV(
-        make_pipeline(StandardScaler(), Ridge()),
-        {"ridge__alpha": list(ALPHAS)},
-        cv=GroupKFold(n_splits=5),
-        scoring="neg_mean_squared_error",
-    ).fit(x, y, groups=groups)
+    search = grid_search(x, y, groups, ALPHAS, folds=5)
     assert alpha == search.best_params_["ridge__alpha"]
     expected = search.best_estimator_.predict(x)
     np.testing.assert_allclose(x @ coef + intercept, expected, rtol=1e-8, atol=1e-8)
@@ -52,12 +57,7 @@ def test_every_alphas_score_is_grid_search_cvs_mean_test_score():
     alphas = tuple(np.logspace(-3, 4, 15))
     x, y, groups = noisy_linear(120, 8, 4, seed=5)
     scores = scores_of(x, x[:, :, None] * x[:, None, :], y, groups, alphas, folds=5)
-    search = GridSearchCV(
-        make_pipeline(StandardScaler(), Ridge()),
-        {"ridge__alpha": list(alphas)},
-        cv=GroupKFold(n_splits=5),
-        scoring="neg_mean_squared_error",
-    ).fit(x, y, groups=groups)
+    search = grid_search(x, y, groups, alphas, folds=5)
     np.testing.assert_allclose(scores, -search.cv_results_["mean_test_score"], rtol=1e-9)
 
 
