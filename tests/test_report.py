@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import shutil
 import subprocess
 from dataclasses import replace
@@ -272,8 +273,8 @@ def test_code_line_counts_runs_per_commit():
 @pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
 def test_code_version_is_the_checkouts_commit_and_says_dirty(tmp_path):
     def git(*args: str) -> str:
-        env = {"GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "HOME": str(tmp_path)}
-        env |= {"GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t", "PATH": "/usr/bin:/bin"}
+        env = {**os.environ, "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t"}
+        env |= {"GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t", "HOME": str(tmp_path)}
         return subprocess.run(
             ["git", "-C", str(repo), *args], check=True, capture_output=True, text=True, env=env
         ).stdout.strip()
