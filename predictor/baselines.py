@@ -54,9 +54,11 @@ RIDGE_BASELINES = {  # baseline name -> RidgeConfig fields
     "ridge_labelled_relation": {"neighbours": "labelled", "groups": "relation"},
 }
 NEIGHBOUR_MODES = ("none", "nearest", "labelled", "random")
-# one regression per agent role, or, for the agents that carry an attention label, one per
-# relation to the labelled agent (RELATION_AHEAD / RELATION_BEHIND), whatever their role
-GROUPINGS = ("role", "relation")
+# one regression per agent role; or, for the agents that carry an attention label, one per
+# relation to the labelled agent (RELATION_AHEAD / RELATION_BEHIND), whatever their role; or one
+# per role and scene case (an oracle gate: the case is read from the data, as the label is)
+GROUPINGS = ("role", "relation", "case")
+CASE_STRIDE = 256  # group key of "case": case * CASE_STRIDE + role (roles are int8, < 128)
 RELATION_AHEAD, RELATION_BEHIND = -1, -2  # group keys of `relation_groups` (roles are >= 0)
 
 
@@ -99,7 +101,10 @@ class RidgeConfig:
     # agents' regressions per relation to their labelled agent instead (`relation_groups`). On
     # Double Merge a colour is the rear car in one case and the front car in the other, and
     # one map per colour cannot read the other car both ways: v1 ratio 0.3, labelled car,
-    # main-car test ADE 1.369 m per role, 0.513 m per relation (docs/scenarios.md)
+    # main-car test ADE 1.369 m per role, 0.513 m per relation (docs/scenarios.md). "case"
+    # fits one regression per role and case: what knowing the case is worth to a linear map
+    # (Halting Car v1, whose follower reads the leader differently when it stops and when it
+    # goes: docs/PREDICTOR.md)
     groups: str = "role"
 
     def __post_init__(self) -> None:
@@ -193,9 +198,11 @@ class RidgeBaseline:
         roles: np.ndarray,
         num_observed: int,
         dt: float,
+        case: np.ndarray | None = None,
     ) -> RidgeBaseline:
         """Fit on n training scenes: states (n, T, N, 2 or more: x, y and optionally the heading,
-        see `ridge_states`), valid/attention (n, T, N), roles (n, N).
+        see `ridge_states`), valid/attention (n, T, N), roles (n, N), case (n,) (needed by
+        groups "case" only).
 
         Samples are the (scene, agent) pairs present over the whole history window and future.
         """
@@ -203,7 +210,7 @@ class RidgeBaseline:
         self.dt, self.num_observed = float(dt), int(num_observed)
         features, usable, frames = self._features(states, valid, attention)
         target = self._target(states[..., :2], valid, frames)  # (n, N, T_pred * 2)
-        roles = self._groups(states, attention, roles)
+        roles = self._groups(states, attention, roles, case)
         complete = usable & valid[:, num_observed:].all(axis=1)  # (n, N)
         scene = np.broadcast_to(np.arange(len(states))[:, None], complete.shape)
         self.models, self.alpha = {}, {}
@@ -220,15 +227,22 @@ class RidgeBaseline:
     def fit_set(self, data: TrajectorySet, meta: DatasetMeta) -> RidgeBaseline:
         """`fit` on the scenes of `data`, a split of a file described by `meta`."""
         states = ridge_states(data.states, meta.state_names)
-        return self.fit(states, data.valid, data.attention, data.roles, meta.num_observed, meta.dt)
+        return self.fit(
+            states, data.valid, data.attention, data.roles, meta.num_observed, meta.dt, data.case
+        )
 
     def predict_set(self, data: TrajectorySet, meta: DatasetMeta) -> np.ndarray:
         """`predict` the scenes of `data`, a split of a file described by `meta`."""
         states = ridge_states(data.states, meta.state_names)
-        return self.predict(states, data.valid, data.attention, data.roles)
+        return self.predict(states, data.valid, data.attention, data.roles, data.case)
 
     def predict(
-        self, states: np.ndarray, valid: np.ndarray, attention: np.ndarray, roles: np.ndarray
+        self,
+        states: np.ndarray,
+        valid: np.ndarray,
+        attention: np.ndarray,
+        roles: np.ndarray,
+        case: np.ndarray | None = None,
     ) -> np.ndarray:
         """Predicted positions of steps T_obs .. T-1, (n, T_pred, N, 2) float32 [m]."""
         if not self.num_observed:
@@ -237,7 +251,7 @@ class RidgeBaseline:
         positions = states[..., :2]
         pred = constant_velocity(positions, valid, self.num_observed).astype(np.float64)
         features, usable, frames = self._features(states, valid, attention)
-        roles = self._groups(states, attention, roles)
+        roles = self._groups(states, attention, roles, case)
         local = np.zeros(usable.shape + (pred.shape[1], 2))  # (n, N, T_pred, 2) offsets
         for role, model in self.models.items():
             rows = usable & (roles == role)
@@ -254,11 +268,21 @@ class RidgeBaseline:
         """Steps of history used: `config.history_steps`, at most num_observed - 1."""
         return min(self.config.history_steps, self.num_observed - 1)
 
-    def _groups(self, states: np.ndarray, attention: np.ndarray, roles: np.ndarray) -> np.ndarray:
+    def _groups(
+        self,
+        states: np.ndarray,
+        attention: np.ndarray,
+        roles: np.ndarray,
+        case: np.ndarray | None,
+    ) -> np.ndarray:
         """Each agent's regression (n, N), by `config.groups`."""
         if self.config.groups == "role":
             return roles
-        return relation_groups(states, attention, roles, self.num_observed)
+        if self.config.groups == "relation":
+            return relation_groups(states, attention, roles, self.num_observed)
+        if case is None:
+            raise ValueError('groups "case" needs the case of every scene')
+        return np.asarray(case, np.int64)[:, None] * CASE_STRIDE + roles.astype(np.int64)
 
     @staticmethod
     def _check(states: np.ndarray, num_observed: int) -> None:

@@ -20,7 +20,9 @@ scenes) the minor case's few scenes are drowned by the major case's. "relation" 
 attending agents' regressions per relation to the labelled agent instead (ahead of it or behind
 it at the last observed step, `predictor.baselines.relation_groups`), pooling the roles: the
 three regressions (own, labelled, random) get the same groups, so the gain still measures only
-what the labelled car's *history* adds.
+what the labelled car's *history* adds. "case" fits one regression per role and case (the
+case read from the data, an oracle gate like the label): set beside "role", it says how much of
+a scenario's error is not knowing the case, which a linear map of the history cannot infer.
 """
 
 from __future__ import annotations

@@ -12,6 +12,7 @@ from conftest import REPO_ROOT, tool_env
 
 from predictor.baselines import (
     BASELINES,
+    CASE_STRIDE,
     RELATION_AHEAD,
     RELATION_BEHIND,
     RIDGE_BASELINES,
@@ -223,6 +224,63 @@ def ahead_or_behind(rng: np.random.Generator, n: int):
     states[rows, :, 1, :2] -= 12.0 * ahead[rows, None]
     states[rows, t0 + 1 :, 0, :2] -= 2.0 * drift[rows, :, None] * normal[rows, None]
     return states, attention, roles, case
+
+
+def decided_by_case(rng: np.random.Generator, n: int):
+    """Straight constant-speed histories; after the last observed step agent 0 speeds up along
+    its heading in case 0 and slows down in case 1 (every other scene), which its history does
+    not show. Agent 1 is its label (uninformative), agents 2-3 drive on."""
+    states = random_agents(rng, n, 4, 0.0)
+    case = (np.arange(n) % 2).astype(np.int8)
+    heading = states[:, 0, 0, 2]
+    ahead = np.stack([np.cos(heading), np.sin(heading)], -1)  # (n, 2)
+    t0 = OBSERVED - 1
+    k = np.arange(1, STEPS - t0)
+    sign = np.where(case == 0, 1.0, -1.0)
+    states[:, t0 + 1 :, 0, :2] += (0.05 * sign[:, None] * k[None] ** 2)[..., None] * ahead[:, None]
+    attention = np.full(states.shape[:3], -1, np.int16)
+    attention[:, :, 0] = 1
+    roles = np.tile(np.array([0, 1, 2, 2], np.int8), (n, 1))
+    return states, attention, roles, case
+
+
+def test_case_groups_fit_one_regression_per_role_and_case(tmp_path):
+    """A future decided by the case alone: one map per role must hedge between speeding up and
+    slowing down (its error is the drift itself, closed form 0.05 k^2 m at step k); one map per
+    role and case predicts it exactly."""
+    rng = np.random.default_rng(7)
+    train_states, train_attention, train_roles, train_case = decided_by_case(rng, 60)
+    test_states, test_attention, test_roles, test_case = decided_by_case(rng, 20)
+    drift = 0.05 * np.arange(1, STEPS - OBSERVED + 1) ** 2
+    errors = {}
+    for groups in ("role", "case"):
+        config = RidgeConfig(history_steps=4, groups=groups)
+        model = RidgeBaseline(config).fit(
+            train_states, np.ones(train_states.shape[:3], bool), train_attention, train_roles,
+            OBSERVED, DT, train_case,
+        )  # fmt: skip
+        pred = model.predict(
+            test_states, np.ones(test_states.shape[:3], bool), test_attention, test_roles, test_case
+        )
+        errors[groups] = np.linalg.norm(pred[:, :, 0] - test_states[:, OBSERVED:, 0, :2], axis=-1)
+    np.testing.assert_allclose(errors["role"].mean(0), drift, rtol=0.05)
+    assert errors["case"].max() < 1e-3
+    assert set(model.models) == {case * CASE_STRIDE + role for case in (0, 1) for role in (0, 1, 2)}
+    with pytest.raises(ValueError, match="needs the case"):
+        model.predict(test_states, np.ones(test_states.shape[:3], bool), test_attention, test_roles)
+
+    path = write_gain_file(tmp_path / "case.h5", decided_by_case, np.random.default_rng(8))
+    for row in interaction_gain(path, grouping="case"):
+        assert row.own < 1e-3 and row.labelled < 1e-3
+    done = subprocess.run(
+        [
+            sys.executable, str(REPO_ROOT / "tools" / "inspect_data.py"), path,
+            "--interaction-gain", "--gain-groups", "case",
+        ],
+        capture_output=True, text=True, env=tool_env(), timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert float(done.stdout.strip().splitlines()[-1].split()[3]) < 1e-3
 
 
 def test_interaction_gain_finds_the_deciding_car_and_the_tool_prints_it(tmp_path):

@@ -33,8 +33,9 @@ def main(argv: list[str] | None = None) -> None:
         "--gain-groups",
         choices=GROUPINGS,
         default="role",
-        help="with --interaction-gain: one ridge regression per role (default), or for the "
-        "attending cars one per relation to the labelled car (ahead or behind it)",
+        help="with --interaction-gain: one ridge regression per role (default); for the "
+        "attending cars one per relation to the labelled car (ahead or behind it); or one per "
+        "role and case (an oracle gate on the case)",
     )
     args = parser.parse_args(argv)
     path = require_file(args.file)
