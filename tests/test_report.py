@@ -126,7 +126,7 @@ def test_aggregates_of_hand_made_runs():
 
 def test_comparisons_of_hand_made_runs():
     results = statistics.analyse(hand_runs())
-    assert set(results.comparisons) == {("hc_go", "s_attn")}  # the baseline is not compared
+    assert set(results.comparisons) == {("hc_go", "ours", "s_attn")}  # no baseline compared
     cell = results.comparison("hc_go", "s_attn")[MAJOR_ADE]
     assert (cell.mean_ours, cell.mean_other) == (2.0, 6.0)
     assert cell.test.p == pytest.approx(stats.ttest_ind([1, 3], [5, 7], equal_var=False).pvalue)
@@ -162,7 +162,7 @@ def test_comparable_verdicts(ours, other, p, text):
 def test_claims_table_rows_for_run_and_missing_comparisons():
     results = statistics.analyse(hand_runs())
     rows = statistics.claims(results, ["hc_go"], [])
-    assert [r.claim for r in rows][:4] == [c[2] for c in statistics.CLAIMS]
+    assert [r.claim for r in rows][:5] == [c[3] for c in statistics.CLAIMS]
     s_attn = rows[0].cells
     p = stats.ttest_ind([1, 3], [5, 7], equal_var=False).pvalue  # 0.106: not < 0.01
     assert s_attn[MAJOR_ADE].text == f"not significant (p={p:.3f})"
@@ -170,6 +170,27 @@ def test_claims_table_rows_for_run_and_missing_comparisons():
     assert rows[-1].setting == "size study"
     assert rows[-1].cells[MAJOR_ADE].text == "n/a (needs two size settings)"
     assert rows[0].to_json()["cells"]["major ade"] == s_attn[MAJOR_ADE].text
+
+
+def test_correct_is_compared_with_average_without_ours():
+    """The pathway check (Ours-Correct against Ours-Average) needs no Ours run, and its claim
+    row reads the Welch test of the two."""
+    rows = [("correct", 0, 1.0), ("correct", 1, 2.0), ("average", 0, 4.0), ("average", 1, 6.0)]
+    runs = [
+        RunRecord.from_eval(
+            "hc_stop", v, s, fake_eval({"major": a, "minor": a}, {"major": a, "minor": a})
+        )
+        for v, s, a in rows
+    ]
+    results = statistics.analyse(runs)
+    assert set(results.comparisons) == {("hc_stop", "correct", "average")}
+    cell = results.comparison("hc_stop", "average", first="correct")[MAJOR_ADE]
+    assert (cell.mean_ours, cell.mean_other) == (1.5, 5.0)
+    p = stats.ttest_ind([1, 2], [4, 6], equal_var=False).pvalue  # 0.074: not < 0.05
+    claims = {row.claim: row for row in statistics.claims(results, ["hc_stop"], [])}
+    pathway = claims[statistics.CLAIMS[-1][3]]
+    assert pathway.cells[MAJOR_ADE].text == f"not significant (p={p:.3f})"
+    assert claims[statistics.CLAIMS[2][3]].cells[MAJOR_ADE].text == "n/a (not run)"  # no Ours
 
 
 def size_runs(ours_by_size: list[float]) -> list[RunRecord]:

@@ -78,7 +78,10 @@ class Report:
                 {(s, v): x.to_json() for (s, v), x in self.results.summaries.items()}
             ),
             "tests": _by_setting(
-                {(s, f"ours_vs_{o}"): x.to_json() for (s, o), x in self.results.comparisons.items()}
+                {
+                    (s, f"{f}_vs_{o}"): x.to_json()
+                    for (s, f, o), x in self.results.comparisons.items()
+                }
             ),
             "claims": [row.to_json() for row in self.claims],
         }

@@ -49,7 +49,8 @@ CLAIM_RULES = (
     f"{ALPHA_S_ATTN} against S-Attn, as in the paper; {ALPHA} otherwise); **not "
     "significant** = lower mean, p >= alpha; **does not hold** = Ours' mean is not "
     f"lower. For Ours-Correct: **holds** unless Correct is better with p < {ALPHA} "
-    "(difference relative to Correct). Size study: the mean margin NonSmooth − Ours "
+    "(difference relative to Correct). Ours-Correct against Ours-Average: as Ours against a "
+    f"rival, Correct in Ours' place (alpha {ALPHA}). Size study: the mean margin NonSmooth − Ours "
     "should fall from the smallest to the largest training set (**partly**: only "
     "smallest > largest)."
 )

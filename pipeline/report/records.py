@@ -167,7 +167,8 @@ class WelchTest:
 
 @dataclass(frozen=True)
 class Difference:
-    """Ours against another variant on one measure: the test and both means."""
+    """One variant against another on one measure (`Comparison`): the test and both means
+    (`mean_ours` is the first variant's, Ours in every comparison but one)."""
 
     test: WelchTest
     mean_ours: float | None
@@ -176,9 +177,11 @@ class Difference:
 
 @dataclass(frozen=True)
 class Comparison:
-    """Ours against one other variant of the same setting, on every COMPARED measure."""
+    """One trained variant (`first`: Ours, or Ours-Correct against Ours-Average) against
+    another of the same setting, on every COMPARED measure."""
 
     setting: str
+    first: str
     other: str
     cells: Mapping[Measure, Difference]
 
@@ -205,13 +208,13 @@ class Results:
 
     runs: tuple[RunRecord, ...]
     summaries: Mapping[tuple[str, str], VariantSummary]  # (setting, variant)
-    comparisons: Mapping[tuple[str, str], Comparison]  # (setting, other variant)
+    comparisons: Mapping[tuple[str, str, str], Comparison]  # (setting, first, other variant)
 
     def summary(self, setting: str, variant: str) -> VariantSummary | None:
         return self.summaries.get((setting, variant))
 
-    def comparison(self, setting: str, other: str) -> Comparison | None:
-        return self.comparisons.get((setting, other))
+    def comparison(self, setting: str, other: str, first: str = "ours") -> Comparison | None:
+        return self.comparisons.get((setting, first, other))
 
     def has_setting(self, setting: str) -> bool:
         return any(s == setting for s, _ in self.summaries)
