@@ -219,7 +219,8 @@ def test_existing_report_needs_overwrite(quick):
         (["--epochs", "x"], "invalid int value"),
         (["--results", "report.txt"], "must name a .md file"),
         (["--report", "report.txt"], "must name a .md file"),
-        (["--budget-minutes", "0"], "--budget-minutes must be positive"),
+        (["--budget-minutes", "-1"], "--budget-minutes must not be negative"),
+        (["--budget-minutes", "nan"], "--budget-minutes must not be negative"),
         (["--store", str(REPO_ROOT / "README.md")], "exists and is not a directory"),
         (["--store", "s", "--no-store"], "not allowed with argument"),
     ],
@@ -440,9 +441,7 @@ def test_results_store_rebuilds_the_report_in_a_fresh_cache_and_budget_leaves_ru
     assert results[0]["aggregates"] == results[1]["aggregates"]
     assert results[1]["counts"]["reused_from_store"] == 4
 
-    spent, _ = run_reproduce(
-        *STORE_ARGS, "--out-dir", str(tmp_path / "c"), "--budget-minutes", "1e-6"
-    )
+    spent, _ = run_reproduce(*STORE_ARGS, "--out-dir", str(tmp_path / "c"), "--budget-minutes", "0")
     assert spent.returncode == 0, spent.stderr[-2000:]
     assert (
         "0 trained, 0 resumed, 0 reused, 0 failed, 4 left for a later run (budget)" in spent.stdout

@@ -37,7 +37,8 @@ Results store (`--store`, default results/, none with --quick): each finished ru
 cache. Commit it: a run found there is not redone, so a protocol can be completed over several
 sittings or machines, and the report can be rebuilt from the store alone (the datasets are
 regenerated in seconds). `--budget-minutes M` starts no run after M minutes; the running ones
-finish, the report covers what is done, and the same command later continues.
+finish, the report covers what is done, and the same command later continues;
+`--budget-minutes 0` starts none and rebuilds the report from the store and the cache alone.
 
 Cache (`--out-dir`, default outputs/reproduce): datasets and runs, keyed by every input (see
 pipeline/run_plan.py). A run with its eval.json is reused; a run with last.pt resumes
@@ -185,7 +186,8 @@ def parse_args(argv: list[str] | None = None):
         type=float,
         default=None,
         help="start no run after this many minutes: running ones finish, the report covers "
-        "what is done, and a rerun continues (default: no limit)",
+        "what is done, and a rerun continues (default: no limit; 0 starts none and only "
+        "rebuilds the report from the store and the cache)",
     )
     return parser.parse_args(argv)
 
@@ -250,8 +252,8 @@ def main(argv: list[str] | None = None) -> None:
     protocol = protocol_from_args(args)
     out_dir, report = output_paths(args)
     store = store_path(args)
-    if args.budget_minutes is not None and not args.budget_minutes > 0:
-        fail(f"--budget-minutes must be positive, got {args.budget_minutes}")
+    if args.budget_minutes is not None and not args.budget_minutes >= 0:
+        fail(f"--budget-minutes must not be negative, got {args.budget_minutes}")
     budget_s = None if args.budget_minutes is None else 60.0 * args.budget_minutes
     command = "python tools/reproduce.py " + " ".join(sys.argv[1:] if argv is None else argv)
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # inherited by the spawned workers
