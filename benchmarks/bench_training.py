@@ -43,7 +43,8 @@ from predictor.config import ModelConfig, make_configs, resolve_roles  # noqa: E
 from predictor.data import Batch  # noqa: E402
 from predictor.evaluation import predict_model  # noqa: E402
 from predictor.model import SmoothAttentionPredictor  # noqa: E402
-from predictor.training import make_optimizer, train_step  # noqa: E402
+from predictor.run_state import make_optimizer  # noqa: E402
+from predictor.training import train_step  # noqa: E402
 
 ROLE_NAMES = ("main_green", "main_brown", "distractor")  # the scenarios' roles (agent preset)
 # Settings timed besides the presets, to show what each addition costs: the agent preset before

@@ -6,14 +6,13 @@ and `best.pt` (the weights with the lowest validation ADE of the main agents, i.
 split's focal agents, fed-back means).
 
 Determinism: the seed fixes the initial weights (torch RNG), the batch order (the loader's own
-generator) and the rollout samples (torch RNG). `last.pt` stores the optimizer state, the epoch,
-the best validation score and the torch, numpy, python and loader RNG states, so a resumed run
-reproduces the uninterrupted one bit for bit (same thread count assumed).
+generator) and the rollout samples (torch RNG); what `last.pt` keeps to resume a run bit for bit
+is in `predictor.run_state`.
 
 Failures: everything that can be checked (run directory, data file, resume compatibility) is
 checked before the run directory is touched; a fresh run that fails before its first checkpoint
 (`last.pt`) removes the files and directories it created, so it blocks neither a re-run nor
-`--resume`. A resumed run may change only `RESUME_MAY_CHANGE` (see `resume_configs`). Write
+`--resume`. A resumed run may change only `run_state.RESUME_MAY_CHANGE`. Write
 failures (read-only directory, full disk) are a RunError naming the file (`predictor.run_files`).
 """
 
@@ -24,20 +23,17 @@ import math
 import os
 import random
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import torch
 from tqdm import tqdm
 
 from predictor import __version__
 from predictor.config import ModelConfig, TrainConfig, resolve_roles
-from predictor.data import Batch, TrajectoryDataset, make_loader
+from predictor.data import Batch, TrajectoryDataset
 from predictor.evaluation import (
-    CHECKPOINT_FORMAT,
-    CHECKPOINT_VERSION,
     predict_model,
     read_checkpoint,
     score,
@@ -46,7 +42,6 @@ from predictor.format import DatasetMeta
 from predictor.losses import LossWeights, compute_loss
 from predictor.model import SmoothAttentionPredictor
 from predictor.predictions import Predictions
-from predictor.random_state import rng_state, seed_everything, set_rng_state
 from predictor.run_files import (
     RunError,
     atomic_save,
@@ -56,15 +51,15 @@ from predictor.run_files import (
     remove_failed_start,
     writing,
 )
-from predictor.stored_config import (
-    ADDED_MODEL_FIELDS,
-    ADDED_TRAIN_FIELDS,
-    config_to_dict,
-    model_config_from_dict,
-    train_config_from_dict,
+from predictor.run_state import (
+    RunState,
+    build_state,
+    check_resume,
+    checkpoint_dict,
+    restore_state,
+    rewrite_metrics,
 )
-
-RESUME_MAY_CHANGE = ("epochs", "threads", "eval_every")  # TrainConfig fields; nothing else may
+from predictor.stored_config import config_to_dict
 
 
 def loss_weights(config: TrainConfig) -> LossWeights:
@@ -192,84 +187,6 @@ def describe_data(path: str, dataset: TrajectoryDataset, val_count: int) -> dict
 
 
 # --------------------------------------------------------------------------- the loop
-@dataclass
-class RunState:
-    """Everything that changes while training."""
-
-    model: SmoothAttentionPredictor
-    optimizer: torch.optim.Optimizer
-    loader: torch.utils.data.DataLoader
-    epoch: int = 0  # completed epochs
-    best_score: float | None = None
-    best_epoch: int = 0
-    history_tail: dict = field(default_factory=dict)  # last epoch's record
-    # the training scenes in the order fit_normalisation saw them (ModelConfig.attended_refit
-    # refits the highway on them at the start of every epoch); None: no refit
-    refit_scenes: Batch | None = None
-
-
-def checkpoint_dict(
-    state: RunState, model_cfg: ModelConfig, train_cfg: TrainConfig, data: dict, full: bool
-) -> dict:
-    """Checkpoint contents (plain types and tensors only)."""
-    out = {
-        "format": CHECKPOINT_FORMAT,
-        "version": CHECKPOINT_VERSION,
-        "package_version": __version__,
-        "model_state": state.model.state_dict(),
-        "model_config": config_to_dict(model_cfg),
-        "train_config": config_to_dict(train_cfg),
-        "data": data,
-        "epoch": state.epoch,
-        "best_score": state.best_score,
-        "best_epoch": state.best_epoch,
-    }
-    if full:
-        out["optimizer_state"] = state.optimizer.state_dict()
-        out["rng"] = rng_state(state.loader.generator)
-    return out
-
-
-def make_optimizer(model: torch.nn.Module, config: TrainConfig) -> torch.optim.Optimizer:
-    """Adam (the paper's), or AdamW where config.weight_decay > 0."""
-    if config.weight_decay > 0:
-        return torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    return torch.optim.Adam(model.parameters(), lr=config.lr)
-
-
-def build_state(
-    model_cfg: ModelConfig, train_cfg: TrainConfig, train_set: TrajectoryDataset
-) -> RunState:
-    """Seeded model, optimizer and loader of a fresh run."""
-    seed_everything(train_cfg.seed)
-    model = SmoothAttentionPredictor(model_cfg)
-    if model_cfg.frame == "agent":  # input/output scales from the training split (checkpointed)
-        scenes = train_set.all()
-        model.fit_normalisation(
-            scenes.positions, scenes.valid, train_set.meta.num_observed, scenes.roles
-        )
-    optimizer = make_optimizer(model, train_cfg)
-    refit_scenes = train_set.all() if model_cfg.attended_refit else None
-    loader = make_loader(
-        train_set,
-        train_cfg.batch_size,
-        shuffle=True,
-        seed=train_cfg.seed,
-        bucket=train_cfg.bucket_batches,
-    )
-    return RunState(model, optimizer, loader, refit_scenes=refit_scenes)
-
-
-def restore_state(state: RunState, checkpoint: dict) -> None:
-    """Load model, optimizer, counters and RNG states from a `last.pt` dict."""
-    state.model.load_state_dict(state.model.fill_unclamped_range(checkpoint["model_state"]))
-    state.optimizer.load_state_dict(checkpoint["optimizer_state"])
-    state.epoch = int(checkpoint["epoch"])
-    state.best_score = checkpoint["best_score"]
-    state.best_epoch = int(checkpoint["best_epoch"])
-    set_rng_state(checkpoint["rng"], state.loader.generator)
-
-
 def run_epoch(
     state: RunState,
     num_observed: int,
@@ -318,54 +235,6 @@ class TrainResult:
         )
 
 
-def resume_configs(
-    out_dir: str | os.PathLike, changes: Mapping[str, Any] | None = None
-) -> tuple[ModelConfig, TrainConfig]:
-    """The configs to resume the run in `out_dir` with: the stored ones (from last.pt) with
-    `changes` applied, built through the validating constructors.
-
-    `changes` may hold any ModelConfig or TrainConfig field; those in RESUME_MAY_CHANGE are
-    applied, any other must equal the stored value. Raises RunError if there is nothing to
-    resume or a change is forbidden or unknown, ValueError for an out-of-range value.
-    """
-    out = Path(out_dir)
-    check_out_dir(out, resume=True, overwrite=False)
-    checkpoint = read_checkpoint(out / "last.pt")
-    stored = {  # older checkpoints lack the added fields: they take their former values
-        **ADDED_MODEL_FIELDS,
-        **checkpoint["model_config"],
-        **ADDED_TRAIN_FIELDS,
-        **checkpoint["train_config"],
-    }
-    for name, value in (changes or {}).items():
-        if name not in stored:
-            raise RunError(f"unknown setting {name!r}")
-        if name not in RESUME_MAY_CHANGE and value != stored[name]:
-            raise RunError(
-                f"a resumed run keeps its stored configuration: {name} is {stored[name]!r} there "
-                f"(only {', '.join(RESUME_MAY_CHANGE)} may change)"
-            )
-    allowed = {k: v for k, v in (changes or {}).items() if k in RESUME_MAY_CHANGE}
-    return (
-        model_config_from_dict(checkpoint["model_config"]),
-        train_config_from_dict({**checkpoint["train_config"], **allowed}),
-    )
-
-
-def _check_resume(
-    checkpoint: dict, model_cfg: ModelConfig, train_cfg: TrainConfig, data: dict
-) -> None:
-    if checkpoint["model_config"] != config_to_dict(model_cfg):
-        raise RunError("a resumed run must use its stored model configuration")
-    stored, asked = checkpoint["train_config"], config_to_dict(train_cfg)
-    changed = [k for k in asked if k not in RESUME_MAY_CHANGE and stored.get(k) != asked[k]]
-    if changed:
-        raise RunError(f"a resumed run cannot change {', '.join(changed)} of the stored run")
-    keys = [k for k in data if k != "path"]
-    if any(checkpoint["data"].get(k) != data[k] for k in keys):
-        raise RunError(f"a resumed run needs its data file ({checkpoint['data']['path']})")
-
-
 def _load_splits(
     data_path: str | os.PathLike,
 ) -> tuple[TrajectoryDataset, TrajectoryDataset | None, dict]:
@@ -375,16 +244,6 @@ def _load_splits(
     val_set = TrajectoryDataset(data_path, "val")
     data = describe_data(os.fspath(data_path), train_set, len(val_set))
     return train_set, val_set if len(val_set) else None, data
-
-
-def _rewrite_metrics(path: Path, last_epoch: int) -> None:
-    """Keep only the metrics lines of epochs <= last_epoch (after an interruption)."""
-    if not path.exists():
-        return
-    with writing(path, "read"):
-        lines = [line for line in path.read_text().splitlines() if line.strip()]
-    kept = [line for line in lines if json.loads(line)["epoch"] <= last_epoch]
-    atomic_write_text("".join(line + "\n" for line in kept), path)
 
 
 def train(
@@ -417,9 +276,9 @@ def train(
     state = build_state(model_cfg, train_cfg, train_set)
     if resume:
         checkpoint = read_checkpoint(out / "last.pt")
-        _check_resume(checkpoint, model_cfg, train_cfg, data)
+        check_resume(checkpoint, model_cfg, train_cfg, data)
         restore_state(state, checkpoint)
-        _rewrite_metrics(out / "metrics.jsonl", state.epoch)
+        rewrite_metrics(out / "metrics.jsonl", state.epoch)
         created: list[Path] = []
     else:
         created = claim_out_dir(out, overwrite)

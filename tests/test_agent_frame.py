@@ -284,7 +284,7 @@ def test_agent_preset_run_keeps_its_fitted_scales_and_is_deterministic(dataset_f
 
 def test_weight_decay_uses_decoupled_adamw_and_zero_keeps_adam():
     """One AdamW step with zero gradients shrinks every weight by exactly lr * weight_decay."""
-    from predictor.training import make_optimizer
+    from predictor.run_state import make_optimizer
 
     model = SmoothAttentionPredictor(ModelConfig(**SMALL))
     plain = make_optimizer(model, TrainConfig(lr=0.01))

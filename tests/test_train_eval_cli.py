@@ -281,8 +281,8 @@ def test_checkpoint_of_an_older_version_loads_with_the_behaviour_it_was_trained_
     import torch
 
     from predictor.evaluation import load_model
+    from predictor.run_state import resume_configs
     from predictor.stored_config import ADDED_MODEL_FIELDS, ADDED_TRAIN_FIELDS
-    from predictor.training import resume_configs
 
     checkpoint = torch.load(smoke["run"] / "best.pt", weights_only=True)
     model, _ = load_model(smoke["run"] / "best.pt")

@@ -15,7 +15,9 @@ from predictor.config import make_configs
 from predictor.data import TrajectoryDataset, collate_batch
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 from predictor.model import SmoothAttentionPredictor
-from predictor.training import RunError, resume_configs, train, train_step
+from predictor.run_files import RunError
+from predictor.run_state import resume_configs
+from predictor.training import train, train_step
 
 torch.set_num_threads(1)
 

@@ -33,7 +33,9 @@ from predictor.config import (
 )
 from predictor.evaluation import CheckpointError
 from predictor.format import FormatError
-from predictor.training import RESUME_MAY_CHANGE, RunError, resume_configs, train
+from predictor.run_files import RunError
+from predictor.run_state import RESUME_MAY_CHANGE, resume_configs
+from predictor.training import train
 
 MODEL_FLAGS = (
     "embed_dim",

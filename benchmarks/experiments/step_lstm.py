@@ -46,7 +46,8 @@ from bench_training import ROLE_NAMES, synthetic_batch  # noqa: E402
 
 from predictor.config import make_configs, resolve_roles  # noqa: E402
 from predictor.model import SmoothAttentionPredictor  # noqa: E402
-from predictor.training import make_optimizer, train_step  # noqa: E402
+from predictor.run_state import make_optimizer  # noqa: E402
+from predictor.training import train_step  # noqa: E402
 
 LSTMState = tuple[Tensor, Tensor]
 
