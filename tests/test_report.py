@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import shutil
@@ -377,3 +378,17 @@ def test_cpu_model_reads_cpuinfo_or_falls_back(tmp_path):
     cpuinfo.write_text("processor\t: 0\nmodel name\t: Test CPU 3000\nflags\t: x\n")
     assert context.cpu_model(cpuinfo) == "Test CPU 3000"
     assert context.cpu_model(tmp_path / "missing") != ""
+
+
+def test_listed_figures_reads_plain_png_names_only(tmp_path):
+    from pipeline.report.document import listed_figures
+
+    path = tmp_path / "results.json"
+    assert listed_figures(path) == set()  # no previous report
+    path.write_text("{not json")
+    assert listed_figures(path) == set()
+    path.write_text(json.dumps({"runs": []}))  # a report older than the list
+    assert listed_figures(path) == set()
+    names = ["bars_a.png", "../outside.png", "sub/b.png", "notes.md", 3]
+    path.write_text(json.dumps({"figures": {"bars": names, "size": ["size_study.png"]}}))
+    assert listed_figures(path) == {"bars_a.png", "size_study.png"}

@@ -39,6 +39,10 @@ def run_reproduce(*args: str) -> tuple[subprocess.CompletedProcess, float]:
     return done, time.perf_counter() - started
 
 
+STALE_FIGURE = "bars_dm_gone.png"  # listed by the first report's results.json, not redrawn
+USER_FILE = "kept_by_user.png"  # in results/ but never listed: not the report's to remove
+
+
 def eval_files(cache: Path) -> dict[Path, int]:
     return {path: path.stat().st_mtime_ns for path in sorted(cache.rglob("eval.json"))}
 
@@ -63,6 +67,12 @@ def quick(tmp_path_factory) -> dict:
     redone.unlink()
     refused, _ = run_reproduce(*args)  # the report exists and --overwrite is missing
     results.with_name("results_notes.md").write_text(NOTES)
+    # a figure the first report listed but the second will not draw, and a file of the user's
+    listed = json.loads(results.with_name("results.json").read_text())
+    listed["figures"]["bars"].append(STALE_FIGURE)
+    results.with_name("results.json").write_text(json.dumps(listed))
+    (results.parent / "results" / STALE_FIGURE).write_bytes(b"stale")
+    (results.parent / "results" / USER_FILE).write_bytes(b"mine")
     second, second_s = run_reproduce(*args, "--overwrite")
     assert second.returncode == 0, second.stderr[-2000:]
     print(f"--quick: first run {first_s:.1f} s, cached rerun {second_s:.1f} s")
@@ -125,7 +135,7 @@ def test_training_invocations_are_logged_and_reported(quick):
 
 def test_quick_run_writes_the_figures(quick):
     figures = quick["results"].parent / "results"
-    names = {p.name for p in figures.glob("*.png")}
+    names = {p.name for p in figures.glob("*.png")} - {USER_FILE}
     expected = {f"bars_{s}.png" for s in SETTINGS} | {
         "size_study.png",
         "samples_double_merge_v1.png",
@@ -137,6 +147,14 @@ def test_quick_run_writes_the_figures(quick):
         data = (figures / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
         assert f"(results/{name})" in quick["markdown_first"]
+    listed = [name for names in quick["json"]["figures"].values() for name in names]
+    assert sorted(listed) == sorted(expected)
+
+
+def test_rerun_removes_the_stale_figures_its_report_listed_only(quick):
+    figures = quick["results"].parent / "results"
+    assert not (figures / STALE_FIGURE).exists()
+    assert (figures / USER_FILE).read_bytes() == b"mine"
 
 
 def test_results_json_has_every_setting_variant_and_seed(quick):

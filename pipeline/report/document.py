@@ -84,6 +84,7 @@ class Report:
                 }
             ),
             "claims": [row.to_json() for row in self.claims],
+            "figures": {section: list(names) for section, names in self.figures.items()},
         }
 
 
@@ -162,15 +163,32 @@ def draw_figures(report: Report, out: Path) -> dict[str, tuple[str, ...]]:
 
 def write_report(source: ReportInput, path: Path) -> int:
     """Write the figures (results/ beside `path`), results.json and the markdown at `path`;
-    returns the number of figures."""
+    returns the number of figures. Figures that the previous report listed in its results.json
+    and this one does not draw are removed, so the folder holds this report's figures only."""
     report = build_report(source)
     out = path.parent / "results"
     out.mkdir(parents=True, exist_ok=True)
+    results_json = path.with_name("results.json")
+    previous = listed_figures(results_json)
     report = replace(report, figures=draw_figures(report, out))
-    with atomic_output(path.with_name("results.json")) as temp:
+    drawn = {name for names in report.figures.values() for name in names}
+    for name in sorted(previous - drawn):
+        (out / name).unlink(missing_ok=True)
+    with atomic_output(results_json) as temp:
         temp.write_text(json.dumps(report.to_json(), indent=1) + "\n")
     notes = path.with_name(NOTES_FILE)
     text = markdown.render(report, notes.read_text() if notes.is_file() else None, NOTES_FILE)
     with atomic_output(path) as temp:
         temp.write_text(text)
-    return sum(len(names) for names in report.figures.values())
+    return len(drawn)
+
+
+def listed_figures(results_json: Path) -> set[str]:
+    """The figure files (plain .png names in results/) a report's results.json lists; none if
+    the file is missing, unreadable or older than the list (then nothing is removed)."""
+    try:
+        listed = json.loads(results_json.read_text()).get("figures", {})
+        names = [name for section in listed.values() for name in section]
+    except (OSError, ValueError, AttributeError, TypeError):
+        return set()
+    return {n for n in names if isinstance(n, str) and Path(n).name == n and n.endswith(".png")}
