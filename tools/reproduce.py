@@ -164,7 +164,8 @@ def parse_args(argv: list[str] | None = None):
         "--results",
         dest="report",
         default=None,
-        help="markdown report; results.json and the figures (results/) go beside it "
+        help="markdown report; results.json and the figures (results/) go beside it, and "
+        "figures the previous report listed but this one does not draw are removed "
         "(default OUT_DIR/RESULTS.md; docs/RESULTS.md is the published one)",
     )
     parser.add_argument(
