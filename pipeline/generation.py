@@ -51,6 +51,8 @@ from scenarios.rollout import Episode
 FOCAL_AGENTS = (GREEN, BROWN)  # the two main cars: the agents scored and selecting checkpoints
 
 SEED_STRIDE = 1_000_000  # trajectory seeds: SEED_STRIDE * seed + k
+# the largest master seed whose trajectory seeds (and their replacements) stay int64, as stored
+MAX_SEED = (2**63 - 1) // SEED_STRIDE - 1
 DEFAULT_MINOR_RATIO = 0.3  # the paper uses 0.3 and 0.8
 # the scenario generated when none is named: the v1 Double Merge, whose labelled car's observed
 # state decides the attending car's future (docs/scenarios.md); v0 stays available by name
@@ -99,6 +101,8 @@ class GenerateConfig:
         if not _is_number(self.val_fraction) or not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
         _check_int("seed", self.seed, 0)
+        if self.seed > MAX_SEED:
+            raise ValueError(f"seed must be at most {MAX_SEED}, got {self.seed}")
 
     @classmethod
     def for_scenario(

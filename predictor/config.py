@@ -19,6 +19,7 @@ How configs are stored in checkpoints and run directories, and read back: predic
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
@@ -33,6 +34,18 @@ ROLLOUT_FEEDS = ("sample", "mean")
 MEAN_LOSSES = ("nll", "displacement")
 NEIGHBOURS = ("all", "radius", "knn")  # ModelConfig.neighbours (predictor.graph)
 ATTENDED_FITS = ("mean", "edges", "edge_relations")  # ModelConfig.attended_fit
+
+
+MAX_SEED = 2**63 - 1  # seeds are int64 (torch.manual_seed, the checkpoint's config)
+
+
+def require_finite(config: object) -> None:
+    """ValueError naming the first float field of a config dataclass that is NaN or infinite
+    (an infinite learning rate or gain trains NaN weights instead of failing)."""
+    for item in fields(config):  # type: ignore[arg-type]
+        value = getattr(config, item.name)
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"{type(config).__name__}.{item.name} must be finite, got {value}")
 
 
 @dataclass(frozen=True)
@@ -213,6 +226,7 @@ class ModelConfig:
     neighbour_k: int = 16
 
     def __post_init__(self) -> None:
+        require_finite(self)
         for name in ("embed_dim", "edge_hidden", "node_hidden", "attn_dim", "chunk_steps"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ModelConfig.{name} must be >= 1, got {getattr(self, name)}")
@@ -376,6 +390,7 @@ class TrainConfig:
     bucket_batches: bool = True
 
     def __post_init__(self) -> None:
+        require_finite(self)
         if self.variant not in VARIANTS:
             raise ValueError(f"unknown variant {self.variant!r}; choose from {sorted(VARIANTS)}")
         if self.lr_schedule not in LR_SCHEDULES:
@@ -385,6 +400,7 @@ class TrainConfig:
         if self.mean_loss not in MEAN_LOSSES:
             raise ValueError(f"TrainConfig.mean_loss must be one of {MEAN_LOSSES}")
         checks = {  # field -> (holds, rule)
+            "seed": (0 <= self.seed <= MAX_SEED, f"in [0, {MAX_SEED}]"),
             "epochs": (self.epochs >= 1, ">= 1"),
             "batch_size": (self.batch_size >= 1, ">= 1"),
             "lr": (self.lr > 0, "> 0"),

@@ -12,9 +12,25 @@ from predictor.format_reader import read_meta, read_split
 from predictor.predictions import load_predictions
 
 
+def test_demo_refuses_a_folder_it_did_not_write(tmp_path):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("the user's")
+    completed = run_tool("demo.py", "--out", out, "--epochs", "1", timeout=120)
+    assert completed.returncode == 2
+    assert completed.stderr.strip().splitlines() == [
+        f"error: --out {out} holds files the demo did not write; pass --overwrite to replace it"
+    ]
+    assert (out / "notes.txt").read_text() == "the user's"
+    bad_seed = run_tool("demo.py", "--out", tmp_path / "new", "--seed", "-1", timeout=120)
+    assert bad_seed.returncode == 2 and "seed" in bad_seed.stderr
+    assert not (tmp_path / "new").exists()
+
+
 def test_demo_writes_every_output_and_reports_both_predictors(tmp_path):
     out = tmp_path / "demo"
     out.mkdir()
+    (out / ".demo-output").write_text("an earlier demo's")
     (out / "stale.txt").write_text("from an earlier run")
     completed = run_tool("demo.py", "--out", out, "--epochs", "1", timeout=600)
     assert completed.returncode == 0, completed.stderr
@@ -31,6 +47,7 @@ def test_demo_writes_every_output_and_reports_both_predictors(tmp_path):
         "samples.png",
         "predictions.png",
         "attention.png",
+        ".demo-output",
     }
     assert {p.name for p in out.iterdir()} == expected  # the stale file went with the old run
     for name in ("episode.png", "samples.png", "predictions.png", "attention.png"):

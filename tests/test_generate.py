@@ -211,6 +211,14 @@ def test_batched_generation_writes_the_same_bytes_as_one_by_one(tmp_path, name):
         generate_dataset(config, tmp_path / "x.h5", progress=False, batch_scenes=0)
 
 
+def test_master_seeds_whose_trajectory_seeds_overflow_int64_are_refused():
+    top, stride = generation.MAX_SEED, generation.SEED_STRIDE  # seeds stride * seed + k, k < stride
+    assert top * stride + stride <= 2**63 - 1 < (top + 1) * stride + stride
+    GenerateConfig.for_scenario("halting_car", seed=generation.MAX_SEED)
+    with pytest.raises(ValueError, match="seed must be at most"):
+        GenerateConfig.for_scenario("halting_car", seed=generation.MAX_SEED + 1)
+
+
 def test_refuses_to_overwrite_before_any_work(tmp_path, monkeypatch):
     out = tmp_path / "x.h5"
     out.write_bytes(b"precious")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import json
+import math
 import os
 from pathlib import Path
 
@@ -223,6 +224,24 @@ def test_run_directory_rules(braking_file: Path, tmp_path: Path):
 def test_zero_epochs_is_refused():
     with pytest.raises(ValueError, match="TrainConfig.epochs must be >= 1, got 0"):
         tiny_configs(epochs=0)
+
+
+@pytest.mark.parametrize("value", [math.inf, -math.inf, math.nan])
+def test_non_finite_settings_are_refused_before_training(value):
+    with pytest.raises(ValueError, match=r"TrainConfig.lr must be finite"):
+        make_configs("ours", TINY_MODEL, lr=value)
+    with pytest.raises(ValueError, match=r"ModelConfig.attention_gain must be finite"):
+        make_configs("ours", {**TINY_MODEL, "attention_gain": value})
+
+
+def test_seeds_outside_int64_are_refused():
+    with pytest.raises(
+        ValueError, match=r"TrainConfig.seed must be in \[0, 9223372036854775807\], got -1"
+    ):
+        tiny_configs(seed=-1)
+    with pytest.raises(ValueError, match="TrainConfig.seed must be in"):
+        tiny_configs(seed=2**63)
+    assert tiny_configs(seed=2**63 - 1)[1].seed == 2**63 - 1
 
 
 def test_resume_configs_apply_only_the_allowed_changes(braking_file: Path, tmp_path: Path):

@@ -8,8 +8,10 @@
 5. plot sample trajectories, predicted against true trajectories, and the attention of one main
    car on the other over time.
 
-Usage: python tools/demo.py [--out outputs/demo] [--epochs 20] [--seed 0]
-Everything goes under --out (replaced on every run); the last line says where.
+Usage: python tools/demo.py [--out outputs/demo] [--epochs 20] [--seed 0] [--overwrite]
+Everything goes under --out, which a rerun replaces; the last line says where. A folder that
+is not empty and was not written by the demo (it holds no `.demo-output` marker) is replaced
+only with --overwrite.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from scenarios.rollout import advance
 
 DEMO_SCENARIO = DEFAULT_SCENARIO  # the generator's default (Double Merge v1)
 DEMO_DATA = {"num_major": 20, "minor_ratio": 0.3, "num_test": 10}  # small: trains in minutes
+DEMO_MARKER = ".demo-output"  # marks a folder the demo wrote, which a rerun may replace
 
 
 def simulate_episode(out: Path, seed: int) -> Path:
@@ -62,6 +65,22 @@ def write_figure(path: Path, fig) -> None:
         save_figure(fig, temp)
 
 
+def replace_output_folder(out: Path, overwrite: bool) -> None:
+    """Empty `out` for a new demo, creating it: exits 2 if it is a file, or if it holds files
+    and no demo marker (a folder of the user's) and `overwrite` is not given."""
+    if out.exists() and not out.is_dir():
+        fail(f"--out {out} is a file, not a folder")
+    if out.is_dir() and any(out.iterdir()) and not (out / DEMO_MARKER).exists() and not overwrite:
+        fail(f"--out {out} holds files the demo did not write; pass --overwrite to replace it")
+    try:
+        if out.exists():
+            shutil.rmtree(out)
+        out.mkdir(parents=True)
+        (out / DEMO_MARKER).write_text("written by tools/demo.py; a rerun replaces this folder\n")
+    except OSError as err:
+        fail(f"cannot write --out {out}: {err.strerror or err}")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = ArgumentParser(
         prog="demo.py", description="Run the whole pipeline on a small default."
@@ -71,23 +90,29 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--epochs", type=int, default=20, help="training epochs (default 20)")
     parser.add_argument("--seed", type=int, default=0, help="data and training seed (default 0)")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace --out even if it holds files the demo did not write",
+    )
     args = parser.parse_args(argv)
     if args.epochs < 1:
         fail(f"--epochs must be at least 1, got {args.epochs}")
+    try:  # every setting checked before anything is written
+        config = GenerateConfig.for_scenario(DEMO_SCENARIO, **DEMO_DATA, seed=args.seed)
+        model_cfg, train_cfg = make_configs("ours", epochs=args.epochs, seed=args.seed)
+    except ValueError as err:
+        fail(f"--seed: {err}")
     started = time.perf_counter()
     out = Path(args.out)
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
+    replace_output_folder(out, args.overwrite)
 
     print(f"== simulate: wrote {simulate_episode(out, args.seed)}", flush=True)
     data = out / f"{DEMO_SCENARIO}.h5"
     print("== generate", flush=True)
-    config = GenerateConfig.for_scenario(DEMO_SCENARIO, **DEMO_DATA, seed=args.seed)
     print(generate_dataset(config, data).summary(), flush=True)
     print("== train", flush=True)
     run = out / "run_ours"
-    model_cfg, train_cfg = make_configs("ours", epochs=args.epochs, seed=args.seed)
     print(train(data, model_cfg, train_cfg, run).summary("ours"), flush=True)
     print("== evaluate", flush=True)
     ours = evaluate_run(run, data, "test")
