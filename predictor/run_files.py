@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -78,27 +79,57 @@ def check_out_dir(out_dir: Path, resume: bool, overwrite: bool) -> None:
         )
 
 
-def claim_out_dir(out_dir: Path, overwrite: bool) -> list[Path]:
-    """Create `out_dir` (and missing parents) and, with overwrite, remove an old run's files.
+# an old run's file set aside by overwrite until the new run has written last.pt
+REPLACED_PREFIX = ".replaced-"
 
-    Returns the directories created, outermost first, for `remove_failed_start`.
-    """
-    created = [p for p in (out_dir, *out_dir.parents) if not p.exists()][::-1]
+
+@dataclass
+class Claim:
+    """What `claim_out_dir` changed in `out_dir`: the directories it created (outermost first)
+    and the old run's files it set aside (with overwrite), so that a failed start can undo both."""
+
+    out_dir: Path
+    created: list[Path] = field(default_factory=list)
+    set_aside: list[Path] = field(default_factory=list)  # the old files' own paths
+
+    def undo(self) -> None:
+        """A fresh run that never wrote last.pt failed: remove its files and the directories it
+        created (only if empty), and put the old run's files back."""
+        for name in RUN_FILES:
+            with contextlib.suppress(OSError):
+                (self.out_dir / name).unlink(missing_ok=True)
+        for path in self.set_aside:
+            with contextlib.suppress(OSError):
+                os.replace(_replaced(path), path)
+        for directory in reversed(self.created):
+            with contextlib.suppress(OSError):
+                directory.rmdir()
+
+    def commit(self) -> None:
+        """The new run has its first checkpoint: the old run's files go."""
+        for path in self.set_aside:
+            with contextlib.suppress(OSError):
+                _replaced(path).unlink(missing_ok=True)
+        self.set_aside = []
+
+
+def _replaced(path: Path) -> Path:
+    return path.with_name(REPLACED_PREFIX + path.name)
+
+
+def claim_out_dir(out_dir: Path, overwrite: bool) -> Claim:
+    """Create `out_dir` (and missing parents) and, with overwrite, set an old run's files aside
+    (renamed with `REPLACED_PREFIX`): nothing of the old run is lost before the new one has
+    written its first checkpoint (`Claim.commit`), and a failed start restores it
+    (`Claim.undo`)."""
+    claim = Claim(out_dir, [p for p in (out_dir, *out_dir.parents) if not p.exists()][::-1])
     with writing(out_dir, "create run directory"):
         out_dir.mkdir(parents=True, exist_ok=True)
     if overwrite:
         for name in RUN_FILES + ("eval.json",):
-            with writing(out_dir / name, "remove"):
-                (out_dir / name).unlink(missing_ok=True)
-    return created
-
-
-def remove_failed_start(out_dir: Path, created: list[Path]) -> None:
-    """Remove what a fresh run that never wrote last.pt left: its files, then the directories
-    it created (only if empty)."""
-    for name in RUN_FILES:
-        with contextlib.suppress(OSError):
-            (out_dir / name).unlink(missing_ok=True)
-    for directory in reversed(created):
-        with contextlib.suppress(OSError):
-            directory.rmdir()
+            path = out_dir / name
+            if path.exists():
+                with writing(path, "set aside"):
+                    os.replace(path, _replaced(path))
+                claim.set_aside.append(path)
+    return claim

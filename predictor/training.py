@@ -12,8 +12,10 @@ is in `predictor.run_state`.
 Failures: everything that can be checked (run directory, data file, resume compatibility) is
 checked before the run directory is touched; a fresh run that fails before its first checkpoint
 (`last.pt`) removes the files and directories it created, so it blocks neither a re-run nor
-`--resume`. A resumed run may change only `run_state.RESUME_MAY_CHANGE`. Write
-failures (read-only directory, full disk) are a RunError naming the file (`predictor.run_files`).
+`--resume`; with overwrite, the old run's files are set aside until the new run's first
+checkpoint and put back if it fails before. A resumed run may change only
+`run_state.RESUME_MAY_CHANGE`. Write failures (read-only directory, full disk) are a RunError
+naming the file (`predictor.run_files`).
 """
 
 from __future__ import annotations
@@ -33,22 +35,18 @@ from tqdm import tqdm
 from predictor import __version__
 from predictor.config import ModelConfig, TrainConfig, resolve_roles
 from predictor.data import Batch, TrajectoryDataset
-from predictor.evaluation import (
-    predict_model,
-    read_checkpoint,
-    score,
-)
+from predictor.evaluation import CheckpointError, predict_model, read_checkpoint, score
 from predictor.format import DatasetMeta
 from predictor.losses import LossWeights, compute_loss
 from predictor.model import SmoothAttentionPredictor
 from predictor.predictions import Predictions
 from predictor.run_files import (
+    Claim,
     RunError,
     atomic_save,
     atomic_write_text,
     check_out_dir,
     claim_out_dir,
-    remove_failed_start,
     writing,
 )
 from predictor.run_state import (
@@ -277,19 +275,26 @@ def train(
     if resume:
         checkpoint = read_checkpoint(out / "last.pt")
         check_resume(checkpoint, model_cfg, train_cfg, data)
-        restore_state(state, checkpoint)
+        try:
+            restore_state(state, checkpoint)
+        except (KeyError, RuntimeError, TypeError, ValueError) as err:
+            message = " ".join(str(err).split())[:200]
+            raise CheckpointError(f"{out / 'last.pt'}: cannot resume from it ({message})") from None
         rewrite_metrics(out / "metrics.jsonl", state.epoch)
-        created: list[Path] = []
+        claim = Claim(out)
     else:
-        created = claim_out_dir(out, overwrite)
+        claim = claim_out_dir(out, overwrite)
     try:
         final_loss = _train_epochs(
             state, model_cfg, train_cfg, data, val_set, out, progress, step_callback
         )
     except BaseException:
         if not resume and not (out / "last.pt").exists():
-            remove_failed_start(out, created)
+            claim.undo()
+        else:
+            claim.commit()
         raise
+    claim.commit()
     return TrainResult(
         out,
         state.epoch,

@@ -299,6 +299,49 @@ def test_interrupted_start_leaves_nothing(braking_file: Path, tmp_path: Path):
     assert train(braking_file, model_cfg, train_cfg, existing, progress=False).epochs == 1
 
 
+def test_overwrite_keeps_the_old_run_until_the_new_one_has_a_checkpoint(
+    braking_file: Path, tmp_path: Path
+):
+    model_cfg, train_cfg = tiny_configs(epochs=1)
+    run = tmp_path / "run"
+    train(braking_file, model_cfg, train_cfg, run, progress=False)
+    (run / "eval.json").write_text("{}")
+    (run / "notes.txt").write_text("the user's")
+    old = {p.name: p.read_bytes() for p in run.iterdir()}
+    with pytest.raises(KeyboardInterrupt):  # fails before its first checkpoint
+        train(
+            braking_file,
+            model_cfg,
+            train_cfg,
+            run,
+            overwrite=True,
+            progress=False,
+            step_callback=_interrupt_first_step,
+        )
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == old  # put back, byte for byte
+    other_cfg = tiny_configs(epochs=1, seed=1)
+    train(braking_file, *other_cfg, run, overwrite=True, progress=False)
+    names = sorted(p.name for p in run.iterdir())
+    assert names == ["best.pt", "config.json", "last.pt", "metrics.jsonl", "notes.txt"]
+    assert (run / "last.pt").read_bytes() != old["last.pt"]  # the new run, seed 1
+
+
+def test_resume_from_a_checkpoint_without_its_state_is_one_clear_error(
+    braking_file: Path, tmp_path: Path
+):
+    from predictor.evaluation import CheckpointError
+
+    model_cfg, train_cfg = tiny_configs(epochs=1)
+    run = tmp_path / "run"
+    train(braking_file, model_cfg, train_cfg, run, progress=False)
+    checkpoint = torch.load(run / "last.pt", weights_only=True)
+    del checkpoint["optimizer_state"]
+    torch.save(checkpoint, run / "last.pt")
+    more = tiny_configs(epochs=2)
+    with pytest.raises(CheckpointError, match=r"last.pt: cannot resume from it \('optimizer"):
+        train(braking_file, *more, run, resume=True, progress=False)
+
+
 def test_bad_data_touches_no_directory(tmp_path: Path):
     data = write_braking_dataset(tmp_path / "no_train.h5", counts=(0, 2, 2))
     model_cfg, train_cfg = tiny_configs(epochs=1)
