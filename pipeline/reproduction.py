@@ -346,14 +346,16 @@ def reproduce(
     ones finish and the report covers what is done. `backend` "local" runs `jobs` processes
     here, "ray" Ray tasks on the cluster at `address` (see the module).
 
-    Raises FileExistsError if the report exists and not `overwrite`, ReproductionError for an
-    unusable cache entry, RuntimeError if a dataset cannot be made, RayUnavailableError if Ray
-    is asked for but not installed; KeyboardInterrupt leaves every finished run cached.
+    Raises FileExistsError if the report or results.json beside it exists and not `overwrite`,
+    ReproductionError for an unusable cache entry, RuntimeError if a dataset cannot be made,
+    RayUnavailableError if Ray is asked for but not installed; KeyboardInterrupt leaves every
+    finished run cached.
     """
     from pipeline.report.document import ReportInput, write_report
 
-    if report.exists() and not overwrite:
-        raise FileExistsError(f"{report} already exists")
+    for path in (report, report.with_name("results.json")):
+        if path.exists() and not overwrite:
+            raise FileExistsError(f"{path} already exists")
     started = time.perf_counter()
     out_dir.mkdir(parents=True, exist_ok=True)
     report.parent.mkdir(parents=True, exist_ok=True)

@@ -278,6 +278,27 @@ def test_publishing_over_docs_needs_overwrite(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "outputs").exists()
 
 
+def test_results_beside_a_new_report_and_unusable_folders_are_refused_first(
+    tmp_path, monkeypatch, capsys
+):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "results.json").write_text("precious\n")
+    (tmp_path / "file.h5").write_text("data\n")
+    for args, message in (
+        (["--report", "mine/NEW.md"], "mine/results.json already exists; pass --overwrite"),
+        (["--report", "file.h5/R.md"], "--report: file.h5 is a file, so file.h5 cannot be a"),
+        (["--out-dir", "file.h5/cache"], "--out-dir: file.h5 is a file, so file.h5/cache"),
+    ):
+        with pytest.raises(SystemExit) as exit_:
+            reproduce.main(["--quick", "--settings", "dm_3+10", "--variants", "const_vel", *args])
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
+    assert (tmp_path / "mine" / "results.json").read_text() == "precious\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file.h5", "mine"]
+
+
 def wait_for_training(cache: Path, process: subprocess.Popen, timeout: float = 300.0) -> None:
     """Return once a run being trained has finished an epoch (its metrics.jsonl has a line)."""
     deadline = time.monotonic() + timeout

@@ -237,11 +237,32 @@ def output_paths(args) -> tuple[Path, Path]:
     report = Path(args.report) if args.report else out_dir / "RESULTS.md"
     if report.suffix.lower() != ".md":
         fail(f"--report must name a .md file, got {report}")
-    if report.is_dir() or (report.exists() and not args.overwrite):
-        fail(f"{report} already exists; pass --overwrite to replace it (cached runs are reused)")
+    if report.is_dir():
+        fail(f"--report {report} is a directory")
+    figures = report.with_name("results")
+    beside = [report, report.with_name("results.json")]
+    beside += [figures] if figures.is_dir() and any(figures.iterdir()) else []
+    taken = [path for path in beside if path.exists()]
+    if taken and not args.overwrite:
+        fail(
+            f"{taken[0]} already exists; pass --overwrite to replace the report, results.json "
+            "and the figures in results/ beside it (cached runs are reused)"
+        )
     if out_dir.exists() and not out_dir.is_dir():
         fail(f"--out-dir {out_dir} exists and is not a directory")
+    for flag, folder in (("--out-dir", out_dir), ("--report", report.parent)):
+        check_folder(flag, folder)
     return out_dir, report
+
+
+def check_folder(flag: str, folder: Path) -> None:
+    """Exit 2 unless `folder` is, or can be created as, a writable folder: its nearest existing
+    ancestor must be a folder we may write in (checked before any run starts)."""
+    existing = next(p for p in (folder, *folder.parents) if p.exists())
+    if not existing.is_dir():
+        fail(f"{flag}: {existing} is a file, so {folder} cannot be a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        fail(f"{flag}: cannot write in {existing}")
 
 
 def _interrupt(signum, frame) -> None:
