@@ -156,7 +156,7 @@ def figure_scenes(case: np.ndarray, interaction: np.ndarray, num_cases: int) -> 
 def evaluate_job(job: Job) -> None:
     """Score the run's best.pt (or the baseline) on the test split; eval.json is written last."""
     from pipeline.report.context import code_version
-    from predictor.evaluation import evaluate_baseline, evaluate_run
+    from predictor.evaluation import evaluate_baseline, evaluate_run, json_safe
 
     started = time.perf_counter()
     directory = Path(job.run_dir)
@@ -189,7 +189,8 @@ def evaluate_job(job: Job) -> None:
             evaluation.save_predictions(temp, rows)
     info["eval_seconds"] = time.perf_counter() - started
     with atomic_output(directory / "eval.json") as temp:
-        temp.write_text(json.dumps({**info, **evaluation.scores}, indent=1) + "\n")
+        text = json.dumps(json_safe({**info, **evaluation.scores}), indent=1, allow_nan=False)
+        temp.write_text(text + "\n")
 
 
 def _train_seconds(metrics: Path) -> float:

@@ -52,6 +52,19 @@ CHECKPOINTS = ("best", "last")  # a run's checkpoint files, without ".pt"
 MATCHED_DATA = ("scenario", "dt", "num_observed", "num_predicted")  # run vs evaluated file
 
 
+def json_safe(value: Any) -> Any:
+    """`value` with every NaN or infinite float replaced by None, so that json.dumps writes
+    strict JSON (null) rather than the bare NaN / Infinity most JSON readers refuse; a score
+    is non-finite when a model's predictions are (a diverged checkpoint)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: json_safe(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(item) for item in value]
+    return value
+
+
 class CheckpointError(ValueError):
     """A file is not a readable checkpoint of this package; the message is one line."""
 
@@ -230,7 +243,7 @@ class Evaluation:
         if self.baseline is not None:
             info["baseline_fit"] = self.baseline
         extra = {} if self.diagnostics is None else {"diagnostics": self.diagnostics}
-        return {**info, **self.scores, **extra}
+        return json_safe({**info, **self.scores, **extra})
 
     def headline(self) -> str:
         """One line with the main-agent ADE/FDE and the attention accuracy."""

@@ -35,7 +35,13 @@ from tqdm import tqdm
 from predictor import __version__
 from predictor.config import ModelConfig, TrainConfig, resolve_roles
 from predictor.data import Batch, TrajectoryDataset
-from predictor.evaluation import CheckpointError, predict_model, read_checkpoint, score
+from predictor.evaluation import (
+    CheckpointError,
+    json_safe,
+    predict_model,
+    read_checkpoint,
+    score,
+)
 from predictor.format import DatasetMeta
 from predictor.losses import LossWeights, compute_loss
 from predictor.model import SmoothAttentionPredictor
@@ -340,7 +346,7 @@ def _train_epochs(
             )
             final_loss = record["train"]["loss"]
             with writing(out / "metrics.jsonl"), open(out / "metrics.jsonl", "a") as stream:
-                stream.write(json.dumps(record) + "\n")
+                stream.write(json.dumps(json_safe(record), allow_nan=False) + "\n")
             if record["best"]:
                 atomic_save(
                     checkpoint_dict(state, model_cfg, train_cfg, data, False), out / "best.pt"

@@ -131,3 +131,15 @@ def test_constant_velocity_extrapolates_the_last_step():
     np.testing.assert_allclose(pred[0, :, 1], [[6, 7], [6, 7]])
     with pytest.raises(ValueError):
         constant_velocity(positions, valid, 5)
+
+
+def test_json_safe_writes_non_finite_scores_as_null():
+    import json
+    import math
+
+    from predictor.evaluation import json_safe
+
+    scores = {"ade": math.nan, "per_step": [0.5, math.inf, -math.inf], "n": 3, "case": ("a", 1.0)}
+    safe = json_safe(scores)
+    assert safe == {"ade": None, "per_step": [0.5, None, None], "n": 3, "case": ["a", 1.0]}
+    assert json.loads(json.dumps(safe, allow_nan=False)) == safe

@@ -57,7 +57,7 @@ def simulate_episode(out: Path, seed: int) -> Path:
 
 def write_json(path: Path, value: dict) -> None:
     with writing(path) as temp:
-        temp.write_text(json.dumps(value, indent=2) + "\n")
+        temp.write_text(json.dumps(value, indent=2, allow_nan=False) + "\n")
 
 
 def write_figure(path: Path, fig) -> None:

@@ -178,7 +178,7 @@ def main(argv: list[str] | None = None) -> None:
             evaluation.save_predictions(temp)
     if json_out is not None:
         with writing(json_out) as temp:
-            temp.write_text(json.dumps(result, indent=2) + "\n")
+            temp.write_text(json.dumps(result, indent=2, allow_nan=False) + "\n")
     written = ", ".join(str(p) for p in (json_out, npz_out) if p is not None) or "nothing written"
     print(
         f"{evaluation.predictor} on {evaluation.scenes} {args.split} scenes in "
