@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,6 +137,8 @@ class HumanViewer:
 
     def show(self, frame: np.ndarray) -> None:
         """Display `frame` (H, W, 3) uint8, opening the window on first use."""
+        # pygame greets on stdout at its first import, which would mix into a tool's output
+        os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
         try:
             import pygame
         except ImportError as error:  # pragma: no cover - depends on the optional extra

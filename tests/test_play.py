@@ -96,6 +96,9 @@ def test_play_records_a_gif_and_refuses_to_overwrite_it(tmp_path: Path) -> None:
         ["--scenario", "double_merge", "--render", "human", "--control", "car_99"],
         ["--scenario", "double_merge", "--record", "movie.avi"],
         ["--scenario", "double_merge", "--seed", "-1"],
+        ["--scenario", "double_merge", "--fps", "inf"],
+        ["--scenario", "double_merge", "--fps", "1e-300"],
+        ["--scenario", "double_merge", "--record", "x.gif", "--fps", "1000"],
     ],
 )
 def test_play_bad_arguments_give_one_line_and_exit_2(args: list[str]) -> None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import math
 import os
 import sys
 import tempfile
@@ -34,6 +35,8 @@ STEER_RAD = 0.12  # steering while an arrow key is held
 ACCEL_MPS2, BRAKE_MPS2 = 2.0, -5.0
 VIDEO_SUFFIXES = (".gif", ".mp4")
 HEADLESS_SDL_DRIVERS = ("dummy", "offscreen")  # SDL video drivers that never show a window
+MIN_FPS = 0.1  # slowest frame rate: a frame stays 10 s
+MAX_VIDEO_FPS = 100.0  # a GIF stores each frame's delay in hundredths of a second
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -59,8 +62,10 @@ def check_args(args: argparse.Namespace) -> tuple[str, Path | None]:
         fail(f"--case must be one of {', '.join(scenario.case_names)} for {args.scenario}")
     if args.seed < 0:
         fail(f"--seed must be non-negative, got {args.seed}")
-    if args.fps is not None and not args.fps > 0:
-        fail(f"--fps must be positive, got {args.fps}")
+    if args.fps is not None and not MIN_FPS <= args.fps < math.inf:
+        fail(f"--fps must be a finite number >= {MIN_FPS:g}, got {args.fps}")
+    if args.fps is not None and args.record is not None and args.fps > MAX_VIDEO_FPS:
+        fail(f"--fps of a recording must be at most {MAX_VIDEO_FPS:g}, got {args.fps}")
     if args.control is not None:
         agents = [f"car_{i}" for i in range(scenario.config_class().num_cars)]
         if args.control not in agents:
