@@ -124,6 +124,7 @@ def test_constant_velocity_equals_an_independent_computation(tmp_path: Path) -> 
         ("110\t1\tnan\t2.0", "non-finite value"),
         ("100\t1\t5.0\t5.0", "pedestrian 1 appears twice in frame 100"),
         ("105\t2\t5.0\t5.0", "frame 105 is off the file's frame grid"),
+        ("1" + "0" * 22 + "\t1\t1.0\t2.0", "frame id 1" + "0" * 22 + " is beyond 2**53"),
     ],
 )
 def test_malformed_line_exits_2_naming_file_and_line(tmp_path: Path, line: str, message: str):
@@ -281,6 +282,11 @@ def test_interaction_heading_channel_when_every_row_has_one(tmp_path: Path) -> N
             ":6: ",
             "timestamp_ms 550 is not 0.1 s",
         ),
+        (
+            lambda lines: lines.__setitem__(2, "1" + "0" * 22 + "," + lines[2].split(",", 1)[1]),
+            ":3: ",
+            "case_id '1" + "0" * 22 + "' is beyond 2**53",
+        ),
     ],
 )
 def test_interaction_malformed_input_exits_2_naming_the_line(tmp_path, edit, where, message):
@@ -297,3 +303,15 @@ def test_interaction_malformed_input_exits_2_naming_the_line(tmp_path, edit, whe
     assert len(errors) == 1 and errors[0].startswith(f"error: {bad}{where}"), errors
     assert message in errors[0]
     assert list(out.parent.iterdir()) == []
+
+
+def test_interaction_refuses_a_file_named_twice(tmp_path: Path) -> None:
+    write_interaction(tmp_path / "raw")
+    again = tmp_path / "raw" / "b.csv"
+    out = tmp_path / "inter.h5"
+    result = run_importer("interaction", tmp_path / "raw", again, "--out", out)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        f"error: {again}: given twice (also as {again}); name each file once"
+    ]
+    assert not out.exists()

@@ -12,6 +12,9 @@ import numpy as np
 
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 
+# ids (frames, agents, cases) are read as float64, exact up to 2**53; larger ones are refused
+MAX_ID = 2**53
+
 
 class ImportDataError(ValueError):
     """The input cannot be imported (malformed line, missing folder); the message is one line."""

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.importers.common import (
+    MAX_ID,
     ImportDataError,
     Tracks,
     check_outputs,
@@ -109,6 +110,8 @@ def _parse_line(path: Path, number: int, fields: list[str]) -> list[float]:
     for name, value in (("frame", values[0]), ("ped", values[1])):
         if not value.is_integer():
             raise ImportDataError(f"{where}: {name} id {value!r} is not an integer")
+        if abs(value) >= MAX_ID:
+            raise ImportDataError(f"{where}: {name} id {value:.0f} is beyond 2**53")
     return values
 
 

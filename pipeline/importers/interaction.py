@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.importers.common import (
+    MAX_ID,
     ImportDataError,
     Tracks,
     check_outputs,
@@ -123,6 +124,8 @@ def _parse_row(path: Path, number: int, header: list[str], fields: list[str]) ->
         if not math.isfinite(value) or (integral and not value.is_integer()):
             kind = "an integer" if integral else "a finite number"
             raise ImportDataError(f"{where}: {name} {cell[name]!r} is not {kind}")
+        if integral and abs(value) >= MAX_ID:
+            raise ImportDataError(f"{where}: {name} {cell[name]!r} is beyond 2**53")
         return value
 
     case = int(number_of("case_id", True)) if "case_id" in cell else -1
@@ -261,4 +264,9 @@ def _csv_files(inputs: list[str | os.PathLike]) -> list[Path]:
             raise ImportDataError(f"{entry}: no such file or folder")
     if not files:
         raise ImportDataError("no .csv files in " + ", ".join(str(p) for p in inputs))
+    seen: dict[Path, Path] = {}
+    for path in files:  # one file read twice would put its sequences into two splits
+        first = seen.setdefault(path.resolve(), path)
+        if first is not path:
+            raise ImportDataError(f"{path}: given twice (also as {first}); name each file once")
     return files
