@@ -63,14 +63,18 @@ def require_file(path: str | os.PathLike, what: str = "input file") -> Path:
 
 
 def check_output(path: str | os.PathLike, overwrite: bool = False) -> Path:
-    """The path as a Path; exits 2 if it exists (unless overwrite) or its directory is missing."""
+    """The path as a Path; exits 2 if it exists (unless overwrite), or its directory is missing
+    or not writable."""
     path = Path(path)
     if path.exists() and not overwrite:
         fail(f"output {path} already exists; pass --overwrite to replace it")
     if path.is_dir():
         fail(f"output {path} is a directory")
     if not path.parent.is_dir():
-        fail(f"output directory {path.parent} does not exist")
+        what = "is not a directory" if path.parent.exists() else "does not exist"
+        fail(f"output directory {path.parent} {what}")
+    if not os.access(path.parent, os.W_OK | os.X_OK):  # found now, not after the work
+        fail(f"cannot write in output directory {path.parent}")
     return path
 
 

@@ -196,9 +196,11 @@ def test_plot_tool_bad_input_is_one_line_exit_2(tmp_path: Path, dataset_file: Pa
     for args, fragment in cases:
         _assert_usage_error(_run_plot(*args, "--out", out), fragment)
     _assert_usage_error(_run_plot("samples", dataset_file), "--out")
-    _assert_usage_error(
-        _run_plot("samples", dataset_file, "--out", tmp_path / "x.nope"), "cannot write"
-    )
+    for name in ("x.nope", "noext"):
+        _assert_usage_error(
+            _run_plot("samples", dataset_file, "--out", tmp_path / name),
+            "--out must end in an image format's suffix (",
+        )
     _assert_usage_error(
         _run_plot("samples", dataset_file, "--out", tmp_path / "no" / "x.png"), "does not exist"
     )
@@ -222,3 +224,18 @@ def test_plot_tool_unwritable_output_is_one_line(tmp_path: Path, capsys, monkeyp
     assert exit_info.value.code == 2
     assert capsys.readouterr().err == f"error: cannot write {out}: Permission denied\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["pred.npz"]
+
+
+def test_plot_tool_refuses_an_unwritable_directory_before_drawing(
+    tmp_path: Path, capsys, monkeypatch
+) -> None:
+    """The directory's permission is checked first (simulated: root may write anywhere), so a
+    long job does not run to fail at its end."""
+    plot = load_tool("plot.py")
+    pred = write_predictions_npz(tmp_path / "pred.npz")
+    monkeypatch.setattr(os, "access", lambda path, mode: Path(path) != tmp_path)
+    monkeypatch.setattr(plot, "_make_figure", lambda args: pytest.fail("drew a figure"))
+    with pytest.raises(SystemExit) as exit_info:
+        plot.main(["predictions", str(pred), "--out", str(tmp_path / "pred.png")])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err == f"error: cannot write in output directory {tmp_path}\n"

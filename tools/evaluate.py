@@ -90,7 +90,8 @@ def check_args(args) -> tuple[Path | None, Path | None]:
     out = args.out
     if args.run is not None:
         if not Path(args.run).is_dir():
-            fail(f"run directory {args.run} does not exist")
+            what = "is not a directory" if Path(args.run).exists() else "does not exist"
+            fail(f"run directory {args.run} {what}")
         require_file(Path(args.run) / f"{args.checkpoint}.pt", "checkpoint")
         out = out or str(Path(args.run) / "eval.json")
     json_out = check_output(out, args.overwrite) if out else None

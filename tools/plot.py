@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import argparse
 
+from matplotlib.backend_bases import FigureCanvasBase
+
 from pipeline.cli import ArgumentParser, check_output, fail, require_file, run_main, writing
 from predictor.format import SPLITS, FormatError
 from predictor.format_reader import read_meta, read_split
@@ -77,6 +79,9 @@ def main(argv: list[str] | None = None) -> None:
     args = _build_parser().parse_args(argv)
     require_file(args.file)
     out = check_output(args.out, args.overwrite)
+    formats = sorted(FigureCanvasBase.get_supported_filetypes())
+    if out.suffix.lower().lstrip(".") not in formats:
+        fail(f"--out must end in an image format's suffix ({', '.join(formats)}), got {out}")
     if not MIN_DPI <= args.dpi <= MAX_DPI:
         fail(f"--dpi must be in [{MIN_DPI}, {MAX_DPI}], got {args.dpi}")
     try:
