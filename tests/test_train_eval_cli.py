@@ -219,7 +219,7 @@ def test_closed_stdout_ends_quietly(smoke):
             "checkpoint",
         ),
         ("evaluate.py", ["--baseline", "magic", "--data", "{data}"], "invalid choice"),
-        ("evaluate.py", ["--run", "{foreign}", "--data", "{data}"], "does not exist"),
+        ("evaluate.py", ["--run", "{foreign}", "--data", "{data}"], "is not a directory"),
         (
             "train.py",
             ["--data", "{data}", "--out", "{tmp}/r", "--neighbours", "grid"],
