@@ -281,6 +281,15 @@ def test_case_groups_fit_one_regression_per_role_and_case(tmp_path):
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert float(done.stdout.strip().splitlines()[-1].split()[3]) < 1e-3
+    alone = subprocess.run(
+        [
+            sys.executable, str(REPO_ROOT / "tools" / "inspect_data.py"), path,
+            "--gain-groups", "case",
+        ],
+        capture_output=True, text=True, env=tool_env(), timeout=120,
+    )  # fmt: skip
+    assert alone.returncode == 2
+    assert alone.stderr == "error: --gain-groups needs --interaction-gain\n"
 
 
 def test_interaction_gain_finds_the_deciding_car_and_the_tool_prints_it(tmp_path):

@@ -78,6 +78,8 @@ def test_cli_smoke_summary_and_refuses_overwrite(tmp_path):
         (["--scenario", "halting_car", "--workers", "0"], "--workers"),
         (["--scenario", "halting_car", "--batch-scenes", "0"], "--batch-scenes must be at least 1"),
         (["--scenario", "halting_car", "--minor-ratio", "0.3", "--num-minor", "3"], "either"),
+        (["--scenario", "halting_car", "--address", "head:6379"], "--address needs --backend ray"),
+        (["--scenario", "halting_car", "--seed", str(2**62)], "seed must be at most"),
     ],
 )
 def test_bad_input_exits_2_with_one_line_and_no_file(tmp_path, argv, message):

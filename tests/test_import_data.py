@@ -17,7 +17,7 @@ from predictor.config import make_configs
 from predictor.data import TrajectoryDataset
 from predictor.evaluation import evaluate_baseline, evaluate_run
 from predictor.format import SPLITS
-from predictor.format_reader import read_dataset
+from predictor.format_reader import read_dataset, read_split
 from predictor.training import train
 
 
@@ -315,3 +315,18 @@ def test_interaction_refuses_a_file_named_twice(tmp_path: Path) -> None:
         f"error: {again}: given twice (also as {again}); name each file once"
     ]
     assert not out.exists()
+
+
+def test_interaction_reads_a_csv_with_a_byte_order_mark(tmp_path: Path) -> None:
+    write_interaction(tmp_path / "raw")
+    plain = tmp_path / "plain.h5"
+    import_interaction([tmp_path / "raw"], plain, InteractionConfig(), overwrite=False)
+    for name in ("a.csv", "b.csv"):  # as a spreadsheet's "CSV UTF-8" export writes them
+        path = tmp_path / "raw" / name
+        path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    marked = tmp_path / "marked.h5"
+    import_interaction([tmp_path / "raw"], marked, InteractionConfig(), overwrite=False)
+    for split in SPLITS:
+        a, b = read_split(plain, split), read_split(marked, split)
+        np.testing.assert_array_equal(a.states, b.states)
+        np.testing.assert_array_equal(a.valid, b.valid)

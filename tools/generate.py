@@ -155,6 +155,8 @@ def _in_flag_terms(message: str) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
+    if args.address is not None and args.backend != "ray":
+        fail("--address needs --backend ray")
     config = config_from_args(args)
     if args.workers < 1:
         fail(f"--workers must be at least 1, got {args.workers}")

@@ -32,12 +32,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--gain-groups",
         choices=GROUPINGS,
-        default="role",
+        default=None,
         help="with --interaction-gain: one ridge regression per role (default); for the "
         "attending cars one per relation to the labelled car (ahead or behind it); or one per "
         "role and case (an oracle gate on the case)",
     )
     args = parser.parse_args(argv)
+    if args.gain_groups is not None and not args.interaction_gain:
+        fail("--gain-groups needs --interaction-gain")
     path = require_file(args.file)
     try:
         text, version = summarize(path), read_meta(path).schema_version
@@ -47,7 +49,7 @@ def main(argv: list[str] | None = None) -> None:
     print(f"OK: {path} is a valid schema v{version} dataset")
     if args.interaction_gain:
         try:
-            rows = interaction_gain(path, grouping=args.gain_groups)
+            rows = interaction_gain(path, grouping=args.gain_groups or "role")
         except ValueError as err:
             fail(str(err))
         print("\ninteraction gain (ridge test ADE of the attending agents, fitted on train):")

@@ -271,6 +271,8 @@ def _interrupt(signum, frame) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
+    if args.address is not None and args.backend != "ray":
+        fail("--address needs --backend ray")
     protocol = protocol_from_args(args)
     out_dir, report = output_paths(args)
     store = store_path(args)

@@ -146,7 +146,8 @@ def check_outputs(paths: list[Path], overwrite: bool) -> None:
         if path.exists() and not overwrite:
             raise ImportDataError(f"output {path} already exists; pass --overwrite to replace it")
         if not path.parent.is_dir():
-            raise ImportDataError(f"output directory {path.parent} does not exist")
+            what = "is not a directory" if path.parent.exists() else "does not exist"
+            raise ImportDataError(f"output directory {path.parent} {what}")
 
 
 def write_all(

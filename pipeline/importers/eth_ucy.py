@@ -76,7 +76,7 @@ def read_tracks(path: Path) -> Tracks:
     is not four finite numbers with integral frame and pedestrian ids, or a repeated pair."""
     lines, rows = [], []
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark is not data
     except (OSError, UnicodeDecodeError) as err:
         raise ImportDataError(f"{path}: cannot read ({err})") from None
     for number, line in enumerate(text.splitlines(), start=1):

@@ -93,7 +93,8 @@ def read_sequences(path: Path) -> list[Sequence]:
     """The sequences of one track CSV; ImportDataError naming the file and line for a missing
     column, a short row, a bad number, a repeated (frame, track) or a timestamp off 0.1 s."""
     try:
-        with open(path, newline="", encoding="utf-8") as stream:
+        # utf-8-sig: a byte-order mark, as spreadsheet exports write, is not part of the header
+        with open(path, newline="", encoding="utf-8-sig") as stream:
             reader = csv.reader(stream)
             header = [name.strip() for name in next(reader, [])]
             missing = [c for c in REQUIRED_COLUMNS if c not in header]
