@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from conftest import run_tool
+from conftest import load_tool, run_tool
 
 from predictor.baselines import constant_velocity
 from predictor.format_reader import read_meta, read_split
@@ -13,6 +13,7 @@ from predictor.predictions import load_predictions
 
 
 def test_demo_refuses_a_folder_it_did_not_write(tmp_path):
+    demo = load_tool("demo.py")
     out = tmp_path / "mine"
     out.mkdir()
     (out / "notes.txt").write_text("the user's")
@@ -22,6 +23,11 @@ def test_demo_refuses_a_folder_it_did_not_write(tmp_path):
         f"error: --out {out} holds files the demo did not write; pass --overwrite to replace it"
     ]
     assert (out / "notes.txt").read_text() == "the user's"
+    older = tmp_path / "older_demo"  # written before the marker: only the demo's own names
+    older.mkdir()
+    (older / "episode.png").write_bytes(b"old")
+    assert demo.replace_output_folder(older, overwrite=False) is None
+    assert sorted(p.name for p in older.iterdir()) == [".demo-output"]
     bad_seed = run_tool("demo.py", "--out", tmp_path / "new", "--seed", "-1", timeout=120)
     assert bad_seed.returncode == 2 and "seed" in bad_seed.stderr
     assert not (tmp_path / "new").exists()

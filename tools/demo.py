@@ -10,8 +10,8 @@
 
 Usage: python tools/demo.py [--out outputs/demo] [--epochs 20] [--seed 0] [--overwrite]
 Everything goes under --out, which a rerun replaces; the last line says where. A folder that
-is not empty and was not written by the demo (it holds no `.demo-output` marker) is replaced
-only with --overwrite.
+holds other files than the demo's and no `.demo-output` marker (the demo writes one) is
+replaced only with --overwrite.
 """
 
 from __future__ import annotations
@@ -38,6 +38,21 @@ from scenarios.rollout import advance
 DEMO_SCENARIO = DEFAULT_SCENARIO  # the generator's default (Double Merge v1)
 DEMO_DATA = {"num_major": 20, "minor_ratio": 0.3, "num_test": 10}  # small: trains in minutes
 DEMO_MARKER = ".demo-output"  # marks a folder the demo wrote, which a rerun may replace
+# what the demo writes (a folder holding nothing else is a demo's, also from before the marker)
+DEMO_FILES = frozenset(
+    {
+        DEMO_MARKER,
+        "episode.png",
+        "episode.gif",
+        f"{DEMO_SCENARIO}.h5",
+        "run_ours",
+        "predictions.npz",
+        "eval_const_vel.json",
+        "samples.png",
+        "predictions.png",
+        "attention.png",
+    }
+)
 
 
 def simulate_episode(out: Path, seed: int) -> Path:
@@ -70,8 +85,9 @@ def replace_output_folder(out: Path, overwrite: bool) -> None:
     and no demo marker (a folder of the user's) and `overwrite` is not given."""
     if out.exists() and not out.is_dir():
         fail(f"--out {out} is a file, not a folder")
-    if out.is_dir() and any(out.iterdir()) and not (out / DEMO_MARKER).exists() and not overwrite:
-        fail(f"--out {out} holds files the demo did not write; pass --overwrite to replace it")
+    if out.is_dir() and not overwrite and not (out / DEMO_MARKER).exists():
+        if any(entry.name not in DEMO_FILES for entry in out.iterdir()):
+            fail(f"--out {out} holds files the demo did not write; pass --overwrite to replace it")
     try:
         if out.exists():
             shutil.rmtree(out)
