@@ -330,3 +330,15 @@ def test_interaction_reads_a_csv_with_a_byte_order_mark(tmp_path: Path) -> None:
         a, b = read_split(plain, split), read_split(marked, split)
         np.testing.assert_array_equal(a.states, b.states)
         np.testing.assert_array_equal(a.valid, b.valid)
+
+
+def test_missing_output_folders_are_created(tmp_path: Path) -> None:
+    make_scene(tmp_path / "raw")
+    out = tmp_path / "new" / "data"
+    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
+    assert result.returncode == 0, result.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["eth_ucy_hotel.h5"]
+    write_interaction(tmp_path / "csv")
+    below_a_file = tmp_path / "new" / "data" / "eth_ucy_hotel.h5" / "x.h5"
+    refused = run_importer("interaction", tmp_path / "csv", "--out", below_a_file)
+    assert refused.returncode == 2 and "is not a directory" in refused.stderr

@@ -40,7 +40,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     commands = parser.add_subparsers(dest="command", required=True, parser_class=ArgumentParser)
     eth = commands.add_parser("eth-ucy", help="ETH/UCY pedestrians, leave-one-out folders")
     eth.add_argument("root", help="folder holding <scene>/{train,val,test}/*.txt")
-    eth.add_argument("--out", required=True, help="output folder (must exist)")
+    eth.add_argument("--out", required=True, help="output folder (created if missing)")
     defaults = EthUcyConfig()
     eth.add_argument(
         "--scenes",

@@ -138,27 +138,29 @@ def windows_set(
 
 
 def check_outputs(paths: list[Path], overwrite: bool) -> None:
-    """ImportDataError unless every output can be written: directory exists, no file is in the
-    way (unless `overwrite`), none is a directory."""
+    """ImportDataError unless every output can be written: its directory exists or can be
+    created (no file in the way), no file is in the way (unless `overwrite`), none is a
+    directory."""
     for path in paths:
         if path.is_dir():
             raise ImportDataError(f"output {path} is a directory")
         if path.exists() and not overwrite:
             raise ImportDataError(f"output {path} already exists; pass --overwrite to replace it")
-        if not path.parent.is_dir():
-            what = "is not a directory" if path.parent.exists() else "does not exist"
-            raise ImportDataError(f"output directory {path.parent} {what}")
+        existing = next(p for p in path.parents if p.exists())  # missing ones are created
+        if not existing.is_dir():
+            raise ImportDataError(f"output directory {path.parent}: {existing} is not a directory")
 
 
 def write_all(
     files: Mapping[Path, tuple[DatasetMeta, Mapping[str, TrajectorySet]]], overwrite: bool
 ) -> list[Path]:
     """Write every file, all or nothing: each goes to a temporary name first and they are
-    renamed onto their targets only once all are written."""
+    renamed onto their targets only once all are written (missing directories are created)."""
     check_outputs(list(files), overwrite)
     temps: dict[Path, Path] = {}
     try:
         for path, (meta, splits) in files.items():
+            path.parent.mkdir(parents=True, exist_ok=True)
             temp = path.with_name(f".{path.name}.{os.getpid()}.import.tmp")
             temps[path] = write_dataset(temp, meta, splits, overwrite=True)
         for path, temp in temps.items():
