@@ -1,10 +1,10 @@
 """tools/reproduce.py and pipeline.reproduction: a --quick smoke run (twice: the second reuses
-the cache) in subprocesses, interrupts, usage errors, where the report goes, and the planning.
-The report's statistics are tested on hand-made numbers in test_report.py."""
+the cache) in subprocesses, interrupts, usage errors, where the report goes, and the results
+store. The planning (which jobs, where, under which keys) is in test_run_plan.py; the report's
+statistics are tested on hand-made numbers in test_report.py."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import re
@@ -19,8 +19,8 @@ import pytest
 from conftest import REPO_ROOT, load_tool, run_tool, tool_env
 from scipy import stats
 
-from pipeline import reproduction, result_store, run_plan
-from pipeline.protocol import GROUPS, SETTING_BY_NAME, Protocol, ReproductionError, pick
+from pipeline import result_store, run_plan
+from pipeline.protocol import SETTING_BY_NAME, Protocol, ReproductionError
 from predictor.evaluation import read_checkpoint
 
 reproduce = load_tool("reproduce.py")
@@ -386,77 +386,6 @@ def test_cached_results_are_checked_before_use(tmp_path):
     assert result_store.read_eval(job) == {"variant": "ours", "seed": 0}
 
 
-# ---------------------------------------------------------------------------------- planning
-def test_settings_and_groups_expand_in_canonical_order():
-    names = pick("hc_go,main,dm_r0.3", tuple(SETTING_BY_NAME), GROUPS, "setting")
-    assert names == ("dm_r0.3", "hc_stop", "hc_go")
-    assert GROUPS["size"] == ("dm_3+10", "dm_15+30", "dm_30+100")
-
-
-def test_quick_caps_the_major_count_and_keeps_small_settings():
-    by_name = SETTING_BY_NAME
-    quick = Protocol(tuple(by_name.values()), VARIANTS, 2, 1, quick=True)
-    full = Protocol(tuple(by_name.values()), VARIANTS, 10, 200)
-    assert quick.counts(by_name["dm_3+10"]) == (10, 3)
-    assert quick.counts(by_name["dm_r0.8"]) == (10, 8)  # 40 * 10/50
-    assert quick.counts(by_name["dm_30+100"]) == (10, 3)
-    assert full.counts(by_name["dm_15+30"]) == (30, 15)
-    assert full.counts(by_name["hc_go"]) == (50, 15)
-
-
-def test_jobs_cover_every_variant_and_seed(tmp_path):
-    setting = SETTING_BY_NAME["hc_go"]
-    protocol = Protocol((setting,), VARIANTS, 3, 7)
-    jobs = run_plan.setting_jobs(protocol, setting, tmp_path)
-    assert len(jobs) == 5 * 3 + len(BASELINE_VARIANTS)
-    assert {(j.variant, j.seed) for j in jobs if j.save_scenes} == {("ours", 0), ("s_attn", 0)}
-    data = Path(jobs[0].data_path)
-    assert data.parent == tmp_path / "data"
-    assert re.fullmatch(r"halting_car_v1_go-major_15\+50_test50_seed0_[0-9a-f]{8}\.h5", data.name)
-    assert all(j.data_path == jobs[0].data_path for j in jobs)
-    assert re.fullmatch(r"seed0_ep7_[0-9a-f]{8}", Path(jobs[0].run_dir).name)
-    assert Path(jobs[0].run_dir).parent.name == "ours" and jobs[-1].run_dir.endswith(
-        "ridge_labelled_relation"
-    )
-    names = {Path(j.run_dir).name for j in jobs if j.variant == "s_attn"}
-    assert len(names) == 3
-
-
-def test_cache_keys_change_with_the_configs(tmp_path):
-    setting = SETTING_BY_NAME["dm_r0.3"]
-    protocol = Protocol((setting,), ("ours",), 1, 5)
-    spec = run_plan.data_spec(protocol, setting)
-    other = dataclasses.replace(spec, scenario_digest=run_plan.digest({"changed": 1}))
-    assert spec.stem != other.stem
-
-    def key(variant: str, seed: int, epochs: int) -> str:
-        return run_plan.run_dir(tmp_path, spec, variant, seed, epochs).name.split("_")[-1]
-
-    keys = {key("ours", 0, 5), key("nonsmooth", 0, 5), key("ours", 1, 5), key("ours", 0, 6)}
-    assert len(keys) == 4 and key("ours", 0, 5) == key("ours", 0, 5)
-    agent = run_plan.run_dir(tmp_path, spec, "ours", 0, 5, "agent").name.split("_")[-1]
-    assert agent not in keys  # another preset is another run
-    job = run_plan.setting_jobs(dataclasses.replace(protocol, preset="agent"), setting, tmp_path)
-    assert job[0].preset == "agent" and job[0].run_dir.endswith(agent)
-    model_cfg, train_cfg = run_plan.run_configs("ours", 0, 5, "agent")
-    assert model_cfg.frame == "agent" and train_cfg.epochs == 5 and train_cfg.threads == 1
-    assert run_plan.digest({"a": 1, "b": 2}) == run_plan.digest({"b": 2, "a": 1})
-
-
-def test_figure_scenes_pick_the_first_interacting_scene_per_case():
-    case = np.array([1, 0, 0, 1, 0])
-    interaction = np.zeros((5, 4), dtype=bool)
-    interaction[2, 1] = interaction[4, 3] = True
-    assert reproduction.figure_scenes(case, interaction, 2) == [2, 0]  # case 1: none -> first
-
-
-def test_run_parallel_starts_nothing_after_its_deadline():
-    from pipeline.pool import run_parallel
-
-    assert run_parallel(abs, [-1, -2, 3], 2, "t", deadline=time.monotonic() - 1.0) == [None] * 3
-    assert run_parallel(abs, [-1, -2, 3], 2, "t", deadline=time.monotonic() + 600.0) == [1, 2, 3]
-
-
 STORE_ARGS = ("--quick", "--settings", "main", "--variants", "ours,const_vel", "--seeds", "1")
 
 
@@ -487,24 +416,3 @@ def test_results_store_rebuilds_the_report_in_a_fresh_cache_and_budget_leaves_ru
     )
     assert not list((tmp_path / "c").rglob("eval.json"))
     assert "not started: time budget" in (tmp_path / "c" / "RESULTS.md").read_text()
-
-
-def test_settings_use_the_v1_scenarios():
-    scenarios = {name: SETTING_BY_NAME[name].scenario for name in SETTINGS}
-    assert {s for n, s in scenarios.items() if n.startswith("dm_")} == {"double_merge_v1"}
-    assert {s for n, s in scenarios.items() if n.startswith("hc_")} == {"halting_car_v1"}
-
-
-def test_cache_keys_leave_out_added_switches_at_their_former_values():
-    from predictor.config import make_configs
-    from predictor.stored_config import ADDED_MODEL_FIELDS, config_key, config_to_dict
-
-    model, train = make_configs("ours", preset="paper", seed=0, epochs=5)
-    key = config_key(model)
-    # the paper's model: every added switch holds its former value, so none is in the key, and
-    # the key is what a version before those switches would have written
-    assert not set(ADDED_MODEL_FIELDS) & set(key)
-    assert key == {k: v for k, v in config_to_dict(model).items() if k not in ADDED_MODEL_FIELDS}
-    assert "bucket_batches" in config_key(train)  # on here: not its former value (off)
-    radius, _ = make_configs("ours", {"neighbours": "radius"}, preset="paper")
-    assert config_key(radius)["neighbours"] == "radius"  # a switch in use stays in the key
