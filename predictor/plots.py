@@ -199,6 +199,15 @@ def _scene_name(pred: Predictions, index: int) -> str:
 def plot_predictions(pred: Predictions, index: int) -> Figure:
     """True trajectories of scene `index` as grey lines, predicted means as dots sized by time."""
     _check_index(pred, index)
+    pred_steps = pred.num_observed + np.arange(pred.pred_mean.shape[1])  # (T_pred,)
+    present = pred.valid[index][pred_steps]  # (T_pred, N)
+    finite = np.isfinite(pred.pred_mean[index]).all(axis=-1)  # (T_pred, N)
+    not_finite = int((present & ~finite).sum())
+    if present.any() and not_finite == int(present.sum()):
+        raise PlotInputError(
+            f"no predicted position of {_scene_name(pred, index)} is finite (NaN or inf: "
+            "did the model diverge?); nothing to draw"
+        )
     true_xy = np.where(pred.valid[index][..., None], pred.true_xy[index], np.nan)  # (T, N, 2)
     steps = true_xy.shape[0]
     fig = new_figure(10.0, 3.6)
@@ -212,15 +221,20 @@ def plot_predictions(pred: Predictions, index: int) -> Figure:
         markersize=8,
         zorder=4,
     )
-    pred_steps = pred.num_observed + np.arange(pred.pred_mean.shape[1])  # (T_pred,)
-    mask = pred.valid[index][pred_steps] & np.isfinite(pred.pred_mean[index]).all(axis=-1)
     _draw_dots(
-        ax, pred.pred_mean[index], mask, pred_steps, pred.roles[index], pred.role_names, steps
+        ax,
+        pred.pred_mean[index],
+        present & finite,
+        pred_steps,
+        pred.roles[index],
+        pred.role_names,
+        steps,
     )
     _style_road_axes(ax)
+    missing = f"; {not_finite} predicted points not finite, not drawn" if not_finite else ""
     ax.set_title(
         f"{_scene_name(pred, index)}: predicted means (dots, size grows "
-        f"with time) vs truth (grey lines); | = last observed step",
+        f"with time) vs truth (grey lines); | = last observed step{missing}",
         fontsize="small",
     )
     _role_legend(fig, pred.role_names)

@@ -66,6 +66,12 @@ def check_out_dir(out_dir: Path, resume: bool, overwrite: bool) -> None:
         if not out_dir.exists():
             raise RunError(f"nothing to resume: {out_dir} does not exist")
         if not (out_dir / "last.pt").is_file():
+            if _replaced(out_dir / "last.pt").is_file():
+                raise RunError(
+                    f"nothing to resume in {out_dir}: an --overwrite there was interrupted before "
+                    f"its first checkpoint and set the previous run aside as {REPLACED_PREFIX}*; "
+                    "rename those files back to resume it, or start over with --overwrite"
+                )
             raise RunError(
                 f"nothing to resume in {out_dir}: it has no last.pt (the run never finished an "
                 "epoch); start the run again without --resume (with --overwrite if the directory "
@@ -128,7 +134,13 @@ def claim_out_dir(out_dir: Path, overwrite: bool) -> Claim:
     if overwrite:
         for name in RUN_FILES + ("eval.json",):
             path = out_dir / name
-            if path.exists():
+            if _replaced(path).exists():
+                # an earlier overwrite was interrupted: what it set aside is the run to keep,
+                # and `path` (if any) is the interrupted attempt's
+                with writing(path, "remove"):
+                    path.unlink(missing_ok=True)
+                claim.set_aside.append(path)
+            elif path.exists():
                 with writing(path, "set aside"):
                     os.replace(path, _replaced(path))
                 claim.set_aside.append(path)

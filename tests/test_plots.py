@@ -126,6 +126,24 @@ def test_prediction_and_attention_figures() -> None:
         plot_attention(pred, 0, agent=0, target=4)
 
 
+def test_prediction_figure_counts_or_refuses_non_finite_predictions() -> None:
+    pred = make_predictions(n=2)
+    pred_steps = pred.num_observed + np.arange(pred.pred_mean.shape[1])
+    present = pred.valid[0][pred_steps]
+    assert present.sum() > 2
+    drawn = plot_predictions(pred, 0).axes[0]
+    assert "not finite" not in drawn.get_title()
+    first, second = np.argwhere(present)[:2]
+    pred.pred_mean[0, first[0], first[1]] = np.nan
+    pred.pred_mean[0, second[0], second[1], 1] = np.inf
+    title = plot_predictions(pred, 0).axes[0].get_title()
+    assert title.endswith("; 2 predicted points not finite, not drawn")
+    pred.pred_mean[0] = np.nan
+    with pytest.raises(PlotInputError, match="no predicted position of test scene 0 .* is finite"):
+        plot_predictions(pred, 0)
+    plot_predictions(pred, 1)  # the other scene still draws
+
+
 def test_plots_do_not_touch_pyplot() -> None:
     code = (
         "import sys; sys.path.insert(0, 'tests'); import conftest\n"

@@ -326,6 +326,38 @@ def test_overwrite_keeps_the_old_run_until_the_new_one_has_a_checkpoint(
     assert (run / "last.pt").read_bytes() != old["last.pt"]  # the new run, seed 1
 
 
+def test_an_overwrite_killed_before_its_checkpoint_loses_nothing_on_the_next_try(
+    braking_file: Path, tmp_path: Path
+):
+    """A SIGKILL runs no cleanup: the old run stays set aside as .replaced-* beside the killed
+    attempt's files. Resuming says so; the next overwrite keeps the set-aside run, not the
+    killed attempt's files, and puts it back if it fails too."""
+    from predictor.run_files import claim_out_dir
+
+    model_cfg, train_cfg = tiny_configs(epochs=1)
+    run = tmp_path / "run"
+    train(braking_file, model_cfg, train_cfg, run, progress=False)
+    old = {p.name: p.read_bytes() for p in run.iterdir()}
+    claim_out_dir(run, overwrite=True)  # the killed attempt: set aside, never committed
+    (run / "config.json").write_text("{}")
+    (run / "metrics.jsonl").write_text("")
+    with pytest.raises(RunError, match=r"interrupted before its first checkpoint .*\.replaced-"):
+        train(braking_file, model_cfg, train_cfg, run, resume=True, progress=False)
+    with pytest.raises(KeyboardInterrupt):
+        train(
+            braking_file,
+            model_cfg,
+            train_cfg,
+            run,
+            overwrite=True,
+            progress=False,
+            step_callback=_interrupt_first_step,
+        )
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == old
+    train(braking_file, model_cfg, train_cfg, run, overwrite=True, progress=False)
+    assert sorted(p.name for p in run.iterdir()) == sorted(old)
+
+
 def test_resume_from_a_checkpoint_without_its_state_is_one_clear_error(
     braking_file: Path, tmp_path: Path
 ):
