@@ -4,8 +4,9 @@
 - `fail(msg, code=2)`: print one error line to stderr and exit.
 - `require_file(path)`: exit 2 unless `path` is an existing file.
 - `check_output(path, overwrite)`: exit 2 if the output exists (without overwrite) or its
-  directory is missing.
-- `writing(path)`: context manager yielding a temporary path beside `path`, renamed onto
+  directory can be neither written nor created.
+- `writing(path)`: context manager creating missing folders above `path` and yielding a
+  temporary path beside it, renamed onto
   `path` on success and removed on any failure (Ctrl-C included; `pipeline.files.atomic_output`);
   a write that fails with an OSError (read-only directory, full disk) exits 2 with
   `error: cannot write PATH: REASON`.
@@ -63,27 +64,37 @@ def require_file(path: str | os.PathLike, what: str = "input file") -> Path:
 
 
 def check_output(path: str | os.PathLike, overwrite: bool = False) -> Path:
-    """The path as a Path; exits 2 if it exists (unless overwrite), or its directory is missing
-    or not writable."""
+    """The path as a Path; exits 2 if it exists (unless overwrite), or if its directory can
+    neither be written nor created in the nearest existing folder above it (missing folders are
+    created by `writing`, as the generator and trainer create theirs)."""
     path = Path(path)
     if path.exists() and not overwrite:
         fail(f"output {path} already exists; pass --overwrite to replace it")
     if path.is_dir():
         fail(f"output {path} is a directory")
-    if not path.parent.is_dir():
-        what = "is not a directory" if path.parent.exists() else "does not exist"
-        fail(f"output directory {path.parent} {what}")
-    if not os.access(path.parent, os.W_OK | os.X_OK):  # found now, not after the work
-        fail(f"cannot write in output directory {path.parent}")
+    existing = next(p for p in (path.parent, *path.parent.parents) if p.exists() or p == Path())
+    if not existing.is_dir():
+        fail(f"output directory {path.parent} cannot be created: {existing} is not a directory")
+    if not os.access(existing, os.W_OK | os.X_OK):  # found now, not after the work
+        fail(f"cannot write in output directory {existing}")
     return path
 
 
 @contextlib.contextmanager
 def writing(path: str | os.PathLike) -> Iterator[Path]:
-    """`pipeline.files.atomic_output` for a tool: an OSError raised in the block, or by the
-    final rename, ends the program with one line `error: cannot write PATH: REASON`, exit 2."""
+    """`pipeline.files.atomic_output` for a tool, creating missing folders above `path` (removed
+    again if the write fails): an OSError raised in the block, or by the final rename, ends the
+    program with one line `error: cannot write PATH: REASON`, exit 2."""
+    parent = Path(path).parent
+    created = [p for p in (parent, *parent.parents) if not p.exists()][::-1]
     try:
+        parent.mkdir(parents=True, exist_ok=True)
         with atomic_output(path) as temp:
             yield temp
-    except OSError as err:
-        fail(f"cannot write {path}: {err.strerror or err}")
+    except BaseException as err:
+        for folder in reversed(created):
+            with contextlib.suppress(OSError):
+                folder.rmdir()  # only if empty
+        if isinstance(err, OSError):
+            fail(f"cannot write {path}: {err.strerror or err}")
+        raise

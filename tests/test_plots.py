@@ -219,11 +219,41 @@ def test_plot_tool_bad_input_is_one_line_exit_2(tmp_path: Path, dataset_file: Pa
             _run_plot("samples", dataset_file, "--out", tmp_path / name),
             "--out must end in an image format's suffix (",
         )
+    (tmp_path / "file").write_text("")
     _assert_usage_error(
-        _run_plot("samples", dataset_file, "--out", tmp_path / "no" / "x.png"), "does not exist"
+        _run_plot("samples", dataset_file, "--out", tmp_path / "file" / "sub" / "x.png"),
+        f"output directory {tmp_path / 'file' / 'sub'} cannot be created: "
+        f"{tmp_path / 'file'} is not a directory",
     )
-    names = ["const_vel.npz", "data.h5", "legacy.npz", "pred.npz"]
+    names = ["const_vel.npz", "data.h5", "file", "legacy.npz", "pred.npz"]
     assert sorted(p.name for p in tmp_path.iterdir()) == names
+
+
+def test_plot_tool_creates_missing_output_folders(tmp_path: Path) -> None:
+    pred = write_predictions_npz(tmp_path / "pred.npz")
+    out = tmp_path / "figures" / "scene0" / "pred.png"
+    result = _run_plot("predictions", pred, "--out", out)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == str(out)
+    _assert_png(out)
+
+
+def test_plot_tool_removes_the_folders_it_created_when_the_write_fails(
+    tmp_path: Path, capsys, monkeypatch
+) -> None:
+    plot = load_tool("plot.py")
+    pred = write_predictions_npz(tmp_path / "pred.npz")
+
+    def refuse(src, dst) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(dst))
+
+    monkeypatch.setattr(os, "replace", refuse)
+    out = tmp_path / "new" / "deeper" / "pred.png"
+    with pytest.raises(SystemExit) as exit_info:
+        plot.main(["predictions", str(pred), "--out", str(out)])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err == f"error: cannot write {out}: No space left on device\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pred.npz"]
 
 
 def test_plot_tool_unwritable_output_is_one_line(tmp_path: Path, capsys, monkeypatch) -> None:
