@@ -18,6 +18,10 @@ from types import ModuleType
 import h5py
 import numpy as np
 import pytest
+import torch
+
+# pygame greets on stdout at its first import, which may happen inside a test's capture
+os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 if str(REPO_ROOT) not in sys.path:  # make the packages importable without installation
@@ -30,6 +34,26 @@ from predictor.format import (  # noqa: E402
     write_dataset,
 )
 from predictor.predictions import Predictions  # noqa: E402
+
+# one torch thread for every test, whichever files are collected (the tools run with one too)
+torch.set_num_threads(1)
+
+# set by a user's shell or CI, these would reach into the tests' own runs: a Ray cluster the
+# tests' temporary folders are not on, warnings or dev-mode lines in a tool's one-line stderr
+FOREIGN_ENV = ("RAY_ADDRESS", "PYTHONWARNINGS", "PYTHONDEVMODE")
+
+
+@pytest.fixture(autouse=True)
+def _seeded_global_rngs():
+    """Each test starts from the same global torch RNG state, whatever ran before it."""
+    torch.manual_seed(0)
+
+
+@pytest.fixture(autouse=True)
+def _no_foreign_env(monkeypatch):
+    for name in FOREIGN_ENV:
+        monkeypatch.delenv(name, raising=False)
+
 
 CASE_NAMES = ("major", "minor")
 ROLE_NAMES = ("main_green", "main_brown", "distractor")
@@ -187,7 +211,7 @@ def load_tool(name: str) -> ModuleType:
 
 def tool_env() -> dict[str, str]:
     """Environment for running tools/*.py in a subprocess: repo importable, one thread."""
-    env = dict(os.environ)
+    env = {k: v for k, v in os.environ.items() if k not in FOREIGN_ENV}
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO_ROOT), env.get("PYTHONPATH")]))
     env["OMP_NUM_THREADS"] = "1"
     env["MPLBACKEND"] = "Agg"

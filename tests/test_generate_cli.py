@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import load_tool, run_tool
+from conftest import load_tool, run_tool, tool_env
 
 from pipeline import generation
 from predictor.format_reader import read_meta
@@ -145,6 +145,7 @@ def start_and_wait_for_progress(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         start_new_session=True,  # its own process group, like a job in a terminal
+        env=tool_env(),
     )
     seen = b""
     deadline = time.monotonic() + timeout
@@ -211,4 +212,4 @@ def test_interrupted_run_leaves_no_file(tmp_path, sig, to_group, run):
     assert sum("error" in line for line in lines) == 1
     assert stdout == b""
     assert list(tmp_path.iterdir()) == []
-    assert group_ends(process.pid, within=10.0)  # no worker (nor Ray process) outlives the tool
+    assert group_ends(process.pid, within=30.0)  # no worker (nor Ray process) outlives the tool

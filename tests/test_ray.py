@@ -36,8 +36,12 @@ ray = pytest.importorskip("ray")
 
 @pytest.fixture(scope="module")
 def session():
-    with ray_session(num_cpus=2) as connected:
-        yield connected
+    """A local Ray instance of the tests' own (not a cluster named by the caller's RAY_ADDRESS,
+    which cannot see the tests' temporary folders)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.delenv("RAY_ADDRESS", raising=False)
+        with ray_session(num_cpus=2) as connected:
+            yield connected
 
 
 def test_generation_through_ray_writes_the_same_bytes(session, tmp_path):
@@ -181,7 +185,7 @@ def test_reproduce_cli_through_ray(tmp_path):
         [sys.executable, str(REPO_ROOT / "tools" / "reproduce.py"), *argv],
         capture_output=True,
         text=True,
-        env={k: v for k, v in tool_env().items() if k != "RAY_ADDRESS"},
+        env=tool_env(),
         timeout=300,
     )
     assert done.returncode == 0, done.stderr[-2000:]
@@ -199,7 +203,7 @@ def test_ctrl_c_cancels_a_ray_sweep_and_the_rerun_resumes(tmp_path):
     epochs = 6  # enough that no run finishes before the signal (an epoch takes seconds)
     argv += ["--epochs", str(epochs), "--backend", "ray", "--jobs", "2", "--out-dir", str(cache)]
     command = [sys.executable, str(REPO_ROOT / "tools" / "reproduce.py"), *argv]
-    env = {k: v for k, v in tool_env().items() if k != "RAY_ADDRESS"}
+    env = tool_env()
     process = subprocess.Popen(
         command,
         stdout=subprocess.PIPE,

@@ -293,7 +293,11 @@ def test_code_line_counts_runs_per_commit():
 
 
 @pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
-def test_code_version_is_the_checkouts_commit_and_says_dirty(tmp_path):
+def test_code_version_is_the_checkouts_commit_and_says_dirty(tmp_path, monkeypatch):
+    for name in [n for n in os.environ if n.startswith("GIT_")]:  # e.g. set by a git hook
+        monkeypatch.delenv(name)
+    monkeypatch.setenv("GIT_CEILING_DIRECTORIES", str(tmp_path))  # no checkout above tmp_path
+
     def git(*args: str) -> str:
         env = {**os.environ, "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t"}
         env |= {"GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t", "HOME": str(tmp_path)}
