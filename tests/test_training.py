@@ -269,32 +269,22 @@ def _interrupt_first_step(step: int) -> None:
     raise KeyboardInterrupt
 
 
+def _train_interrupted_at_first_step(data: Path, configs: tuple, run: Path, **options) -> None:
+    """Train into `run`, interrupted (Ctrl-C) before the first optimiser step."""
+    with pytest.raises(KeyboardInterrupt):
+        train(data, *configs, run, progress=False, step_callback=_interrupt_first_step, **options)
+
+
 def test_interrupted_start_leaves_nothing(braking_file: Path, tmp_path: Path):
     """Interrupted before the first checkpoint: the files and directories the run created are
     removed, a directory that existed before is kept (empty), and a plain re-run works."""
     model_cfg, train_cfg = tiny_configs(epochs=1)
     nested = tmp_path / "a" / "b" / "run"
-    with pytest.raises(KeyboardInterrupt):
-        train(
-            braking_file,
-            model_cfg,
-            train_cfg,
-            nested,
-            progress=False,
-            step_callback=_interrupt_first_step,
-        )
+    _train_interrupted_at_first_step(braking_file, (model_cfg, train_cfg), nested)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["braking.h5"]
     existing = tmp_path / "existing"
     existing.mkdir()
-    with pytest.raises(KeyboardInterrupt):
-        train(
-            braking_file,
-            model_cfg,
-            train_cfg,
-            existing,
-            progress=False,
-            step_callback=_interrupt_first_step,
-        )
+    _train_interrupted_at_first_step(braking_file, (model_cfg, train_cfg), existing)
     assert existing.is_dir() and not list(existing.iterdir())
     assert train(braking_file, model_cfg, train_cfg, existing, progress=False).epochs == 1
 
@@ -308,16 +298,8 @@ def test_overwrite_keeps_the_old_run_until_the_new_one_has_a_checkpoint(
     (run / "eval.json").write_text("{}")
     (run / "notes.txt").write_text("the user's")
     old = {p.name: p.read_bytes() for p in run.iterdir()}
-    with pytest.raises(KeyboardInterrupt):  # fails before its first checkpoint
-        train(
-            braking_file,
-            model_cfg,
-            train_cfg,
-            run,
-            overwrite=True,
-            progress=False,
-            step_callback=_interrupt_first_step,
-        )
+    # fails before its first checkpoint
+    _train_interrupted_at_first_step(braking_file, (model_cfg, train_cfg), run, overwrite=True)
     assert {p.name: p.read_bytes() for p in run.iterdir()} == old  # put back, byte for byte
     other_cfg = tiny_configs(epochs=1, seed=1)
     train(braking_file, *other_cfg, run, overwrite=True, progress=False)
@@ -343,16 +325,7 @@ def test_an_overwrite_killed_before_its_checkpoint_loses_nothing_on_the_next_try
     (run / "metrics.jsonl").write_text("")
     with pytest.raises(RunError, match=r"interrupted before its first checkpoint .*\.replaced-"):
         train(braking_file, model_cfg, train_cfg, run, resume=True, progress=False)
-    with pytest.raises(KeyboardInterrupt):
-        train(
-            braking_file,
-            model_cfg,
-            train_cfg,
-            run,
-            overwrite=True,
-            progress=False,
-            step_callback=_interrupt_first_step,
-        )
+    _train_interrupted_at_first_step(braking_file, (model_cfg, train_cfg), run, overwrite=True)
     assert {p.name: p.read_bytes() for p in run.iterdir()} == old
     train(braking_file, model_cfg, train_cfg, run, overwrite=True, progress=False)
     assert sorted(p.name for p in run.iterdir()) == sorted(old)
