@@ -19,7 +19,7 @@ depend on it (tested).
 
 Interrupts: while episodes are rolled out, SIGINT and SIGTERM are only recorded and handed to the
 caller's own handler between episodes, or batches of them
-(`pipeline.episode_runner.DeferredSignals`), so Ctrl-C ends a run cleanly with
+(`pipeline.signals.DeferredSignals`), so Ctrl-C ends a run cleanly with
 KeyboardInterrupt (the default SIGINT handler) and no file; worker processes ignore Ctrl-C and
 are stopped by this process.
 """
@@ -42,7 +42,8 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.backends import BACKENDS
-from pipeline.episode_runner import DEFAULT_BATCH_SCENES, DeferredSignals, run_slots
+from pipeline.episode_runner import DEFAULT_BATCH_SCENES, run_slots
+from pipeline.signals import DeferredSignals
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 from scenarios import SCENARIOS, Scenario
 from scenarios.base import BROWN, GREEN

@@ -3,7 +3,9 @@
 Workers are spawned (never forked from a process that imported torch), run one torch thread and
 ignore SIGINT and SIGTERM (a terminal's Ctrl-C reaches the whole process group); the parent, on
 any exception (KeyboardInterrupt included), sets a shared stop event, and each job calls
-`check_stop()` at its safe points, so no job is killed halfway through a write.
+`check_stop()` at its safe points, so no job is killed halfway through a write. The parent
+takes Ctrl-C and SIGTERM between its polls of the running jobs (`DeferredSignals`), never inside
+the library's waiting code, and a second signal during the clean stop is not let cut it short.
 """
 
 from __future__ import annotations
@@ -19,11 +21,14 @@ from typing import TypeVar
 
 from tqdm import tqdm
 
+from pipeline.signals import DeferredSignals
+
 
 class Stopped(KeyboardInterrupt):
     """Raised in a worker at a safe point once the parent asked the jobs to stop."""
 
 
+_POLL_SECONDS = 0.2  # how often the parent looks for a recorded signal while jobs run
 _STOP = None  # the pool's stop event, in a worker process (set by _init_worker)
 
 
@@ -86,27 +91,29 @@ def run_parallel(
     executor = ProcessPoolExecutor(
         workers, mp_context=context, initializer=_init_worker, initargs=(stop,)
     )
-    bar = tqdm(total=len(items), desc=desc, unit="job", file=sys.stderr, dynamic_ncols=True)
-    queue = iter(enumerate(items))
-    running: dict = {}
-    try:
-        while True:
-            while len(running) < workers and (deadline is None or time.monotonic() < deadline):
-                k, item = next(queue, (None, None))
-                if k is None:
+    with DeferredSignals() as signals:
+        bar = tqdm(total=len(items), desc=desc, unit="job", file=sys.stderr, dynamic_ncols=True)
+        queue = iter(enumerate(items))
+        running: dict = {}
+        try:
+            while True:
+                while len(running) < workers and (deadline is None or time.monotonic() < deadline):
+                    k, item = next(queue, (None, None))
+                    if k is None:
+                        break
+                    with _signals_blocked():  # a worker may start in submit
+                        running[executor.submit(function, item)] = k
+                if not running:
                     break
-                with _signals_blocked():  # a worker may start in submit
-                    running[executor.submit(function, item)] = k
-            if not running:
-                break
-            done, _ = wait(running, return_when=FIRST_COMPLETED)
-            for future in done:
-                results[running.pop(future)] = future.result()
-                bar.update()
-    except BaseException:
-        stop.set()
-        raise
-    finally:
-        bar.close()
-        executor.shutdown(wait=True, cancel_futures=True)
+                signals.check()
+                done, _ = wait(running, timeout=_POLL_SECONDS, return_when=FIRST_COMPLETED)
+                for future in done:
+                    results[running.pop(future)] = future.result()
+                    bar.update()
+        except BaseException:
+            stop.set()
+            raise
+        finally:
+            bar.close()
+            executor.shutdown(wait=True, cancel_futures=True)
     return results
