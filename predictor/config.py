@@ -34,6 +34,14 @@ ROLLOUT_FEEDS = ("sample", "mean")
 MEAN_LOSSES = ("nll", "displacement")
 NEIGHBOURS = ("all", "radius", "knn")  # ModelConfig.neighbours (predictor.graph)
 ATTENDED_FITS = ("mean", "edges", "edge_relations")  # ModelConfig.attended_fit
+# ModelConfig switches that need frame "agent" when not at their defaults (the paper's scene frame)
+AGENT_FRAME_ONLY = (
+    "standardise",
+    "edge_velocity",
+    "offset_scale",
+    "acceleration_input",
+    "rollout_prior",
+)
 
 
 MAX_SEED = 2**63 - 1  # seeds are int64 (torch.manual_seed, the checkpoint's config)
@@ -46,6 +54,22 @@ def require_finite(config: object) -> None:
         value = getattr(config, item.name)
         if isinstance(value, float) and not math.isfinite(value):
             raise ValueError(f"{type(config).__name__}.{item.name} must be finite, got {value}")
+
+
+def require_rules(
+    config: object, choices: dict[str, tuple], bounds: dict[str, tuple[bool, str]]
+) -> None:
+    """ValueError naming the first field of a config dataclass whose value is not one of its
+    `choices` (field -> allowed values) or breaks its bound (field -> (holds, rule))."""
+    kind = type(config).__name__
+    for name, allowed in choices.items():
+        if getattr(config, name) not in allowed:
+            raise ValueError(
+                f"{kind}.{name} must be one of {allowed}, got {getattr(config, name)!r}"
+            )
+    for name, (holds, rule) in bounds.items():
+        if not holds:
+            raise ValueError(f"{kind}.{name} must be {rule}, got {getattr(config, name)}")
 
 
 @dataclass(frozen=True)
@@ -227,101 +251,67 @@ class ModelConfig:
 
     def __post_init__(self) -> None:
         require_finite(self)
-        for name in ("embed_dim", "edge_hidden", "node_hidden", "attn_dim", "chunk_steps"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"ModelConfig.{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("position_scale_m", "interaction_scale_m", "step_scale_m", "min_std_m"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"ModelConfig.{name} must be > 0, got {getattr(self, name)}")
-        if not self.attention_gain > 0:
-            raise ValueError("ModelConfig.attention_gain must be > 0")
-        if self.neighbours not in NEIGHBOURS:
-            raise ValueError(
-                f"ModelConfig.neighbours must be one of {NEIGHBOURS}, got {self.neighbours!r}"
-            )
-        if not self.neighbour_radius_m > 0:
-            raise ValueError(
-                f"ModelConfig.neighbour_radius_m must be > 0, got {self.neighbour_radius_m}"
-            )
-        if self.neighbour_k < 1:
-            raise ValueError(f"ModelConfig.neighbour_k must be >= 1, got {self.neighbour_k}")
-        if self.highway_steps < 0 or self.highway_steps == 1 or self.highway_horizon < 1:
-            raise ValueError("ModelConfig.highway_steps must be 0 or >= 2, highway_horizon >= 1")
-        if self.highway_attended and not self.highway_steps:
-            raise ValueError("ModelConfig.highway_attended needs highway_steps")
-        if self.attended_refit and not self.highway_attended:
-            raise ValueError("ModelConfig.attended_refit needs highway_attended")
-        if self.attended_fit not in ATTENDED_FITS:
-            raise ValueError(
-                f"ModelConfig.attended_fit must be one of {ATTENDED_FITS}, "
-                f"got {self.attended_fit!r}"
-            )
-        if self.attended_fit != "mean" and not self.attended_refit:
-            raise ValueError(f"ModelConfig.attended_fit {self.attended_fit!r} needs attended_refit")
-        if self.attended_fit == "edge_relations" and not self.highway_relation:
-            raise ValueError("ModelConfig.attended_fit 'edge_relations' needs highway_relation")
-        if self.refit_on_prior and not self.attended_refit:
-            raise ValueError("ModelConfig.refit_on_prior needs attended_refit")
-        if self.highway_head_groups and self.attended_fit != "edge_relations":
-            raise ValueError("ModelConfig.highway_head_groups needs attended_fit 'edge_relations'")
-        if self.highway_relation and not self.attended_refit:
-            raise ValueError("ModelConfig.highway_relation needs attended_refit")
-        if self.role_bias_by_group and not (self.role_attention_bias and self.highway_role_groups):
-            raise ValueError(
-                "ModelConfig.role_bias_by_group needs role_attention_bias and highway_role_groups"
-            )
-        if self.highway_role_groups:
-            parts = self.highway_role_groups.split(",")
-            if not all(p.strip().isdigit() for p in parts):
-                raise ValueError(
-                    "ModelConfig.highway_role_groups must be comma-separated group numbers, "
-                    f"got {self.highway_role_groups!r}"
-                )
-            groups = sorted({int(p) for p in parts})
-            if groups != list(range(len(groups))):
-                raise ValueError(
-                    "ModelConfig.highway_role_groups must number its groups 0, 1, ... without "
-                    f"gaps, got {self.highway_role_groups!r}"
-                )
-        if self.highway_steps and self.rollout_prior != "anchored":
-            raise ValueError("ModelConfig.highway_steps needs rollout_prior='anchored'")
-        if not self.log_std_gain > 0:
-            raise ValueError("ModelConfig.log_std_gain must be > 0")
-        if not self.init_std_m > self.min_std_m:
-            raise ValueError("ModelConfig.init_std_m must exceed min_std_m")
-        if self.mean_prior not in MEAN_PRIORS:
-            raise ValueError(
-                f"ModelConfig.mean_prior must be one of {MEAN_PRIORS}, got {self.mean_prior!r}"
-            )
-        if self.attention_mode not in ATTENTION_MODES:
-            raise ValueError(
-                f"ModelConfig.attention_mode must be one of {ATTENTION_MODES}, "
-                f"got {self.attention_mode!r}"
-            )
-        if self.frame not in FRAMES:
-            raise ValueError(f"ModelConfig.frame must be one of {FRAMES}, got {self.frame!r}")
-        if self.offset_scale not in OFFSET_SCALES:
-            raise ValueError(
-                f"ModelConfig.offset_scale must be one of {OFFSET_SCALES}, "
-                f"got {self.offset_scale!r}"
-            )
-        if self.num_roles < ROLES_FROM_DATA:
-            raise ValueError(f"ModelConfig.num_roles must be >= -1, got {self.num_roles}")
-        if self.rollout_prior not in ROLLOUT_PRIORS:
-            raise ValueError(
-                f"ModelConfig.rollout_prior must be one of {ROLLOUT_PRIORS}, "
-                f"got {self.rollout_prior!r}"
-            )
-        agent_only = {
-            "rollout_prior": self.rollout_prior != "previous",
-            "standardise": self.standardise,
-            "edge_velocity": self.edge_velocity,
-            "offset_scale": self.offset_scale != "step",
-            "acceleration_input": self.acceleration_input,
+        choices = {
+            "frame": FRAMES,
+            "offset_scale": OFFSET_SCALES,
+            "rollout_prior": ROLLOUT_PRIORS,
+            "mean_prior": MEAN_PRIORS,
+            "attention_mode": ATTENTION_MODES,
+            "neighbours": NEIGHBOURS,
+            "attended_fit": ATTENDED_FITS,
         }
-        for name, used in agent_only.items():
-            if used and self.frame != "agent":
-                raise ValueError(f"ModelConfig.{name} needs frame='agent'")
+        at_least_one = ("embed_dim", "edge_hidden", "node_hidden", "attn_dim", "chunk_steps")
+        positive = ("position_scale_m", "interaction_scale_m", "step_scale_m", "min_std_m")
+        bounds = {  # field -> (holds, rule)
+            **{name: (getattr(self, name) >= 1, ">= 1") for name in at_least_one},
+            **{name: (getattr(self, name) > 0, "> 0") for name in positive},
+            "attention_gain": (self.attention_gain > 0, "> 0"),
+            "log_std_gain": (self.log_std_gain > 0, "> 0"),
+            "init_std_m": (self.init_std_m > self.min_std_m, f"> min_std_m ({self.min_std_m})"),
+            "num_roles": (self.num_roles >= ROLES_FROM_DATA, f">= {ROLES_FROM_DATA}"),
+            "neighbour_radius_m": (self.neighbour_radius_m > 0, "> 0"),
+            "neighbour_k": (self.neighbour_k >= 1, ">= 1"),
+            "highway_steps": (self.highway_steps == 0 or self.highway_steps >= 2, "0 or >= 2"),
+            "highway_horizon": (self.highway_horizon >= 1, ">= 1"),
+        }
+        require_rules(self, choices, bounds)
+        agent, relations = self.frame == "agent", self.attended_fit == "edge_relations"
+        needs = (  # (switch, what it needs holds, what it needs), checked when not at its default
+            *((name, agent, "frame='agent'") for name in AGENT_FRAME_ONLY),
+            ("highway_steps", self.rollout_prior == "anchored", "rollout_prior='anchored'"),
+            ("highway_attended", self.highway_steps > 0, "highway_steps"),
+            ("attended_refit", self.highway_attended, "highway_attended"),
+            ("attended_fit", self.attended_refit, "attended_refit"),
+            ("attended_fit", self.highway_relation or not relations, "highway_relation"),
+            ("highway_relation", self.attended_refit, "attended_refit"),
+            ("refit_on_prior", self.attended_refit, "attended_refit"),
+            ("highway_head_groups", relations, "attended_fit='edge_relations'"),
+            ("role_bias_by_group", self.role_attention_bias, "role_attention_bias"),
+            ("role_bias_by_group", bool(self.highway_role_groups), "highway_role_groups"),
+        )
+        defaults = {item.name: item.default for item in fields(self)}
+        for name, holds, requirement in needs:
+            value = getattr(self, name)
+            if value != defaults[name] and not holds:
+                shown = "" if isinstance(value, bool) else f"={value!r}"
+                raise ValueError(f"ModelConfig.{name}{shown} needs {requirement}")
+        if self.highway_role_groups:
+            self._check_role_groups()
+
+    def _check_role_groups(self) -> None:
+        """highway_role_groups: comma-separated group numbers 0, 1, ... without gaps."""
+        parts = self.highway_role_groups.split(",")
+        if not all(p.strip().isdigit() for p in parts):
+            raise ValueError(
+                "ModelConfig.highway_role_groups must be comma-separated group numbers, "
+                f"got {self.highway_role_groups!r}"
+            )
+        groups = sorted({int(p) for p in parts})
+        if groups != list(range(len(groups))):
+            raise ValueError(
+                "ModelConfig.highway_role_groups must number its groups 0, 1, ... without "
+                f"gaps, got {self.highway_role_groups!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -393,13 +383,12 @@ class TrainConfig:
         require_finite(self)
         if self.variant not in VARIANTS:
             raise ValueError(f"unknown variant {self.variant!r}; choose from {sorted(VARIANTS)}")
-        if self.lr_schedule not in LR_SCHEDULES:
-            raise ValueError(f"TrainConfig.lr_schedule must be one of {LR_SCHEDULES}")
-        if self.rollout_feed not in ROLLOUT_FEEDS:
-            raise ValueError(f"TrainConfig.rollout_feed must be one of {ROLLOUT_FEEDS}")
-        if self.mean_loss not in MEAN_LOSSES:
-            raise ValueError(f"TrainConfig.mean_loss must be one of {MEAN_LOSSES}")
-        checks = {  # field -> (holds, rule)
+        choices = {
+            "lr_schedule": LR_SCHEDULES,
+            "rollout_feed": ROLLOUT_FEEDS,
+            "mean_loss": MEAN_LOSSES,
+        }
+        bounds = {  # field -> (holds, rule)
             "seed": (0 <= self.seed <= MAX_SEED, f"in [0, {MAX_SEED}]"),
             "epochs": (self.epochs >= 1, ">= 1"),
             "batch_size": (self.batch_size >= 1, ">= 1"),
@@ -416,9 +405,7 @@ class TrainConfig:
             "main_agent_weight": (self.main_agent_weight > 0, "> 0"),
             "one_step_weight": (self.one_step_weight >= 0, ">= 0"),
         }
-        for name, (ok, rule) in checks.items():
-            if not ok:
-                raise ValueError(f"TrainConfig.{name} must be {rule}, got {getattr(self, name)}")
+        require_rules(self, choices, bounds)
         if self.one_step_weight != 1.0 and self.mean_loss != "displacement":
             raise ValueError("TrainConfig.one_step_weight needs mean_loss='displacement'")
         spec = VARIANTS[self.variant]
