@@ -20,7 +20,10 @@ history (`ridge` vs `ridge_labelled`, against `ridge_random`): a scenario whose 
 shows a clear gain with the labelled car and none with a random one.
 
 Features are standardised with statistics of the training samples; the regularisation strength
-is chosen by grouped k-fold cross-validation (folds never split a scene) with scikit-learn. One
+is chosen by grouped k-fold cross-validation (folds never split a scene) with scikit-learn. With
+`neighbour_scales` the neighbours' features get a penalty of their own, chosen by the same
+cross-validation (banded ridge, Nunez-Elizalde et al., NeuroImage 2019): a block of features
+that carries nothing can then be shrunk away without shrinking the own history with it. One
 model is fitted per agent role (roles differ in behaviour: the synthetic main cars change lanes, the
 distractors do not). Agents whose history is incomplete, and roles with fewer than two training
 scenes, are predicted by constant velocity. The agent's heading is taken from the data where it
@@ -58,6 +61,9 @@ NEIGHBOUR_MODES = ("none", "nearest", "labelled", "random")
 # relation to the labelled agent (RELATION_AHEAD / RELATION_BEHIND), whatever their role; or one
 # per role and scene case (an oracle gate: the case is read from the data, as the label is)
 GROUPINGS = ("role", "relation", "case")
+# RidgeConfig.neighbour_scales of a banded fit: factors on the neighbours' standardised
+# features (a penalty alpha / scale^2 on them), 0 dropping them, 1 the shared penalty
+BANDED_SCALES = (0.0, 0.1, 0.3, 1.0, 3.0)
 CASE_STRIDE = 256  # group key of "case": case * CASE_STRIDE + role (roles are int8, < 128)
 RELATION_AHEAD, RELATION_BEHIND = -1, -2  # group keys of `relation_groups` (roles are >= 0)
 
@@ -106,8 +112,16 @@ class RidgeConfig:
     # (Halting Car v1, whose follower reads the leader differently when it stops and when it
     # goes: docs/PREDICTOR.md)
     groups: str = "role"
+    # factors on the neighbours' standardised features, chosen by cross-validation together with
+    # alpha: (1.0,) shares one penalty between own and neighbour features; BANDED_SCALES gives
+    # the neighbours a penalty of their own (0 drops them), so that on few scenes a neighbour
+    # that carries nothing costs no accuracy (docs/scenarios.md: at 52 training scenes a random
+    # car's features cost a few per cent with the shared penalty)
+    neighbour_scales: tuple[float, ...] = (1.0,)
 
     def __post_init__(self) -> None:
+        if not self.neighbour_scales or min(self.neighbour_scales) < 0:
+            raise ValueError("neighbour_scales must be a non-empty list of numbers >= 0")
         if self.history_steps < 2:
             raise ValueError(f"history_steps must be at least 2, got {self.history_steps}")
         if self.neighbours not in NEIGHBOUR_MODES:
@@ -219,7 +233,12 @@ class RidgeBaseline:
             if len(np.unique(scene[rows])) < 2:
                 continue  # too few scenes to choose alpha: this role keeps constant velocity
             model, alpha = fit_ridge_cv(
-                features[rows], target[rows], scene[rows], self.config.alphas, self.config.folds
+                features[rows],
+                target[rows],
+                scene[rows],
+                self.config.alphas,
+                self.config.folds,
+                block=(self.own_features, self.config.neighbour_scales),
             )
             self.models[int(role)], self.alpha[int(role)] = model, alpha
         return self
@@ -263,6 +282,11 @@ class RidgeBaseline:
         return np.where(use, world, pred).astype(np.float32)
 
     # ---- features and targets ---------------------------------------------------------------
+    @property
+    def own_features(self) -> int:
+        """Number of own-motion features (velocities and accelerations); neighbours' follow."""
+        return 2 * self.history + 2 * (self.history - 1)
+
     @property
     def history(self) -> int:
         """Steps of history used: `config.history_steps`, at most num_observed - 1."""
@@ -397,28 +421,46 @@ def relation_groups(
     return np.where(labelled, relation, roles.astype(np.int64))
 
 
+def scale_columns_from(x: np.ndarray, start: int, scale: float) -> np.ndarray:
+    """x with its columns from `start` on multiplied by `scale` (a banded ridge's block)."""
+    x = np.array(x, dtype=np.float64)
+    x[:, start:] *= scale
+    return x
+
+
 def fit_ridge_cv(
     features: np.ndarray,
     target: np.ndarray,
     groups: np.ndarray,
     alphas: tuple[float, ...],
     folds: int,
+    block: tuple[int, tuple[float, ...]] | None = None,
 ) -> tuple[Any, float]:
     """Standardised ridge regression with alpha chosen by grouped k-fold cross-validation
     (folds never split a group, e.g. a scene); returns the refitted scikit-learn pipeline
-    (StandardScaler, Ridge) and the chosen alpha. Needs at least two groups."""
+    (StandardScaler, Ridge) and the chosen alpha. Needs at least two groups.
+
+    `block` (start, scales): the standardised features from column `start` on are multiplied
+    by one of `scales`, chosen by the same cross-validation (the pipeline then has a
+    FunctionTransformer between scaler and ridge); ignored where there are no such columns or
+    the only scale is 1."""
     from sklearn.linear_model import Ridge
     from sklearn.model_selection import GridSearchCV, GroupKFold
     from sklearn.pipeline import make_pipeline
-    from sklearn.preprocessing import StandardScaler
+    from sklearn.preprocessing import FunctionTransformer, StandardScaler
     from threadpoolctl import threadpool_limits
 
     num_groups = len(np.unique(groups))
     if num_groups < 2:
         raise ValueError(f"ridge cross-validation needs at least two groups, got {num_groups}")
+    steps, grid = [StandardScaler(), Ridge()], {"ridge__alpha": list(alphas)}
+    if block is not None and block[0] < features.shape[1] and tuple(block[1]) != (1.0,):
+        start, scales = block
+        steps.insert(1, FunctionTransformer(scale_columns_from))
+        grid["functiontransformer__kw_args"] = [{"start": start, "scale": s} for s in scales]
     search = GridSearchCV(
-        make_pipeline(StandardScaler(), Ridge()),
-        {"ridge__alpha": list(alphas)},
+        make_pipeline(*steps),
+        grid,
         cv=GroupKFold(n_splits=min(folds, num_groups)),
         scoring="neg_mean_squared_error",
     )

@@ -11,6 +11,7 @@ import pytest
 from conftest import REPO_ROOT, tool_env
 
 from predictor.baselines import (
+    BANDED_SCALES,
     BASELINES,
     CASE_STRIDE,
     RELATION_AHEAD,
@@ -143,6 +144,32 @@ def test_only_the_deciding_neighbour_explains_the_future(neighbours, informative
         assert error < 0.01
     else:  # the drift's sign and size are unknowable: the error stays near the drift itself
         assert error > 0.3
+
+
+def test_banded_penalty_can_drop_a_neighbour_and_keeps_a_deciding_one():
+    """A neighbour scale of 0 is the own-history fit exactly (the block's columns vanish); with
+    the banded grid the labelled car that decides the future keeps a nonzero scale."""
+    rng = np.random.default_rng(2)
+    train, train_attention, train_roles = decided_by_neighbour(rng, 80)
+    test, test_attention, test_roles = decided_by_neighbour(rng, 30)
+    own = fitted(train, train_roles, RidgeConfig(history_steps=4), train_attention)
+    assert own.models[0][0].n_features_in_ == own.own_features == 2 * 4 + 2 * 3
+    dropped_config = RidgeConfig(history_steps=4, neighbours="random", neighbour_scales=(0.0,))
+    dropped = fitted(train, train_roles, dropped_config, train_attention)
+    np.testing.assert_allclose(
+        predict(dropped, test, test_roles, test_attention),
+        predict(own, test, test_roles, test_attention),
+        atol=1e-6,
+    )
+    banded_config = RidgeConfig(
+        history_steps=4, neighbours="labelled", neighbour_scales=BANDED_SCALES
+    )
+    banded = fitted(train, train_roles, banded_config, train_attention)
+    assert banded.models[0].named_steps["functiontransformer"].kw_args["scale"] > 0
+    pred = predict(banded, test, test_roles, test_attention)
+    assert np.linalg.norm(pred[:, :, 0] - test[:, OBSERVED:, 0, :2], axis=-1).mean() < 0.01
+    with pytest.raises(ValueError, match="neighbour_scales must be"):
+        RidgeConfig(neighbour_scales=(-1.0,))
 
 
 def test_incomplete_history_falls_back_to_constant_velocity_and_fitting_is_deterministic():
@@ -313,6 +340,25 @@ def test_interaction_gain_finds_the_deciding_car_and_the_tool_prints_it(tmp_path
     assert last[:3] == ["only", "attending", "30"]
     assert float(last[3]) == pytest.approx(row.own, abs=5e-4)
     assert float(last[4]) == pytest.approx(row.labelled, abs=5e-4)
+
+    (banded,) = interaction_gain(path, penalty="banded")
+    assert banded.own == row.own and banded.gain > 0.95
+    with pytest.raises(ValueError, match="penalty must be one of shared, banded"):
+        interaction_gain(path, penalty="lasso")
+    tool = [sys.executable, str(REPO_ROOT / "tools" / "inspect_data.py"), path]
+    done = subprocess.run(
+        [*tool, "--interaction-gain", "--gain-penalty", "banded"],
+        capture_output=True, text=True, env=tool_env(), timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert float(done.stdout.strip().splitlines()[-1].split()[5]) == pytest.approx(
+        banded.random, abs=5e-4
+    )
+    alone = subprocess.run(
+        [*tool, "--gain-penalty", "banded"], capture_output=True, text=True, env=tool_env()
+    )
+    assert alone.returncode == 2
+    assert alone.stderr == "error: --gain-penalty needs --interaction-gain\n"
 
 
 def test_relation_groups_read_the_labelled_car_ahead_and_behind(tmp_path):

@@ -7,7 +7,8 @@ With --interaction-gain, also the interaction gain of the labelled cars (predict
 the test ADE of ridge regressions fitted on the train split on the attending car's own history,
 plus the labelled car's, plus a random car's, per case and role; --gain-groups relation fits
 the attending cars' regressions per relation to the labelled car (ahead or behind it) instead
-of per role.
+of per role; --gain-penalty banded gives the other car's features a ridge penalty of their own
+(chosen by cross-validation), so features that carry nothing cost no accuracy.
 
 Exit status: 0 valid; 1 the file exists but is not a valid dataset; 2 usage error / missing file.
 """
@@ -18,7 +19,7 @@ from pipeline.cli import ArgumentParser, fail, require_file, run_main
 from predictor.baselines import GROUPINGS
 from predictor.format import FormatError
 from predictor.format_reader import read_meta, summarize
-from predictor.interaction import format_gain_table, interaction_gain
+from predictor.interaction import PENALTIES, format_gain_table, interaction_gain
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -37,9 +38,17 @@ def main(argv: list[str] | None = None) -> None:
         "attending cars one per relation to the labelled car (ahead or behind it); or one per "
         "role and case (an oracle gate on the case)",
     )
+    parser.add_argument(
+        "--gain-penalty",
+        choices=tuple(PENALTIES),
+        default=None,
+        help="with --interaction-gain: one ridge penalty for all features (shared, default), "
+        "or one of its own for the other car's (banded)",
+    )
     args = parser.parse_args(argv)
-    if args.gain_groups is not None and not args.interaction_gain:
-        fail("--gain-groups needs --interaction-gain")
+    for option in ("gain_groups", "gain_penalty"):
+        if getattr(args, option) is not None and not args.interaction_gain:
+            fail(f"--{option.replace('_', '-')} needs --interaction-gain")
     path = require_file(args.file)
     try:
         text, version = summarize(path), read_meta(path).schema_version
@@ -49,7 +58,9 @@ def main(argv: list[str] | None = None) -> None:
     print(f"OK: {path} is a valid schema v{version} dataset")
     if args.interaction_gain:
         try:
-            rows = interaction_gain(path, grouping=args.gain_groups or "role")
+            rows = interaction_gain(
+                path, grouping=args.gain_groups or "role", penalty=args.gain_penalty or "shared"
+            )
         except ValueError as err:
             fail(str(err))
         print("\ninteraction gain (ridge test ADE of the attending agents, fitted on train):")

@@ -1,6 +1,7 @@
 """Experiment (issue 11): the interaction gain at the paper's size over many dataset seeds.
 
 Usage: python benchmarks/experiments/gain_seeds.py [--seeds 10] [--num-major 50] [--num-minor 15]
+       [--penalty shared|banded]
 
 For each v1 scenario and dataset seed 0 .. seeds-1, generates a file of the given size (100
 test trajectories per case) in a temporary folder and measures `predictor.interaction`'s gain
@@ -21,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.generation import GenerateConfig, generate_dataset
-from predictor.interaction import GainRow, interaction_gain
+from predictor.interaction import PENALTIES, GainRow, interaction_gain
 
 SCENARIOS = ("double_merge_v1", "halting_car_v1")
 GROUPINGS = ("role", "relation")  # the groupings docs/scenarios.md reports
@@ -50,6 +51,12 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=10, help="dataset seeds 0 .. N-1")
     parser.add_argument("--num-major", type=int, default=50, help="train + val, major case")
     parser.add_argument("--num-minor", type=int, default=15, help="train + val, minor case")
+    parser.add_argument(
+        "--penalty",
+        choices=tuple(PENALTIES),
+        default="shared",
+        help="ridge penalty of the other car's features (predictor.interaction; default shared)",
+    )
     args = parser.parse_args()
     rows: dict[tuple[str, str, str], list[GainRow]] = defaultdict(list)
     with tempfile.TemporaryDirectory() as folder:
@@ -65,7 +72,7 @@ def main() -> None:
                 path = Path(folder) / f"{scenario}_{seed}.h5"
                 generate_dataset(config, path, workers=1, progress=False)
                 for grouping in GROUPINGS:
-                    for row in interaction_gain(path, grouping=grouping):
+                    for row in interaction_gain(path, grouping=grouping, penalty=args.penalty):
                         rows[(scenario, grouping, row.case)].append(row)
     results = []
     for (scenario, grouping, case), found in rows.items():
@@ -78,7 +85,7 @@ def main() -> None:
             f"{figures['control_min']:>+6.1%} / {figures['control_median']:>+5.1%} / "
             f"{figures['control_max']:>+6.1%} (pooled {figures['pooled_control']:+.1%})"
         )
-    print(json.dumps({"seeds": args.seeds, "results": results}))
+    print(json.dumps({"seeds": args.seeds, "penalty": args.penalty, "results": results}))
 
 
 if __name__ == "__main__":
