@@ -5,7 +5,7 @@ ignore SIGINT and SIGTERM (a terminal's Ctrl-C reaches the whole process group);
 any exception (KeyboardInterrupt included), sets a shared stop event, and each job calls
 `check_stop()` at its safe points, so no job is killed halfway through a write. The parent
 takes Ctrl-C and SIGTERM between its polls of the running jobs (`DeferredSignals`), never inside
-the library's waiting code, and a second signal during the clean stop is not let cut it short.
+the library's waiting code, and further signals during the clean stop do not cut it short.
 """
 
 from __future__ import annotations

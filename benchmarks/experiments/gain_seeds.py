@@ -7,7 +7,9 @@ For each v1 scenario and dataset seed 0 .. seeds-1, generates a file of the give
 test trajectories per case) in a temporary folder and measures `predictor.interaction`'s gain
 with one ridge regression per role and per relation to the labelled car. Prints, per scenario,
 grouping and case, the gain and control over the seeds' rows (minimum, median, maximum) and
-pooled (ADE sums over all rows). Not run by `make bench`; docs/scenarios.md has the figures.
+pooled (ADE sums over all rows), and how many rows meet issue 11's bounds (gain >= 30 %,
+control within 3 %); `--penalty banded` gives the other car's features a penalty of their own
+(`predictor.interaction`). Not run by `make bench`; docs/scenarios.md has the figures.
 The last line of stdout is one JSON object.
 """
 
@@ -26,6 +28,7 @@ from predictor.interaction import PENALTIES, GainRow, interaction_gain
 
 SCENARIOS = ("double_merge_v1", "halting_car_v1")
 GROUPINGS = ("role", "relation")  # the groupings docs/scenarios.md reports
+GAIN_BOUND, CONTROL_BOUND = 0.30, 0.03  # issue 11: gain >= 30 %, random car within 3 %
 
 
 def summary(rows: list[GainRow]) -> dict:
@@ -41,6 +44,8 @@ def summary(rows: list[GainRow]) -> dict:
         "control_min": float(controls.min()),
         "control_median": float(np.median(controls)),
         "control_max": float(controls.max()),
+        "controls_within_3pct": int((np.abs(controls) < CONTROL_BOUND).sum()),
+        "gains_over_30pct": int((gains >= GAIN_BOUND).sum()),
         "pooled_gain": 1.0 - sum(row.labelled * row.agents for row in rows) / own,
         "pooled_control": sum(row.random * row.agents for row in rows) / own - 1.0,
     }
@@ -83,7 +88,9 @@ def main() -> None:
             f"{figures['gain_min']:>5.0%} / {figures['gain_median']:>4.0%} / "
             f"{figures['gain_max']:>4.0%} (pooled {figures['pooled_gain']:.0%})  control "
             f"{figures['control_min']:>+6.1%} / {figures['control_median']:>+5.1%} / "
-            f"{figures['control_max']:>+6.1%} (pooled {figures['pooled_control']:+.1%})"
+            f"{figures['control_max']:>+6.1%} (pooled {figures['pooled_control']:+.1%})  "
+            f"rows gain >= 30 % {figures['gains_over_30pct']}, control within 3 % "
+            f"{figures['controls_within_3pct']}"
         )
     print(json.dumps({"seeds": args.seeds, "penalty": args.penalty, "results": results}))
 
