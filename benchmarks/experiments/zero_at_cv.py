@@ -17,12 +17,12 @@ Per file and main role, both forms are fitted with the baseline's alpha grid and
 cross-validated mean squared error, and the form with the lower one (the choice a fit per role
 could make without seeing the test split).
 
---scale-floor: the features' standardising scales are at least this (m/step and m/step^2 per
-`predictor.baselines`' units); 0 is scikit-learn's StandardScaler. Positions are stored as
-float32, so a feature that is constant up to rounding (a leader's accelerations before it
-brakes: standard deviation ~1e-4) is otherwise blown up to unit variance, and the map reads
-the rounding. Not run by `make bench`; docs/PREDICTOR.md has the figures. The last line of
-stdout is one JSON object.
+--scale-floor: the features' standardising scales are at least this (m/s for velocities,
+m/s^2 for accelerations, `predictor.baselines`' units); 0 is scikit-learn's StandardScaler.
+Positions are stored as float32, so a feature that is constant up to rounding (a leader's
+accelerations before it brakes: standard deviation ~1e-4 m/s^2) is otherwise blown up to unit
+variance, and the map reads the rounding. Not run by `make bench`; docs/PREDICTOR.md has the
+figures. The last line of stdout is one JSON object.
 """
 
 from __future__ import annotations
