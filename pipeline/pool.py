@@ -67,6 +67,21 @@ Item = TypeVar("Item")
 Result = TypeVar("Result")
 
 
+def due_items(
+    queue: Iterator[tuple[int, Item]], count: int, deadline: float | None
+) -> list[tuple[int, Item]]:
+    """The next at most `count` (index, item) pairs of `queue` to start, none once `deadline`
+    (a `time.monotonic()` value; None: no deadline) has passed: the local pool's and the Ray
+    backend's rule for handing out work."""
+    due: list[tuple[int, Item]] = []
+    while len(due) < count and (deadline is None or time.monotonic() < deadline):
+        pair = next(queue, None)
+        if pair is None:
+            break
+        due.append(pair)
+    return due
+
+
 def run_parallel(
     function: Callable[[Item], Result],
     items: Sequence[Item],
@@ -97,10 +112,7 @@ def run_parallel(
         running: dict = {}
         try:
             while True:
-                while len(running) < workers and (deadline is None or time.monotonic() < deadline):
-                    k, item = next(queue, (None, None))
-                    if k is None:
-                        break
+                for k, item in due_items(queue, workers - len(running), deadline):
                     with _signals_blocked():  # a worker may start in submit
                         running[executor.submit(function, item)] = k
                 if not running:

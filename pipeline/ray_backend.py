@@ -19,10 +19,11 @@ import logging
 import os
 import signal
 import threading
-import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
+
+from pipeline.pool import due_items
 
 DEFAULT_POLL_SECONDS = 0.1  # how often the caller's `check` runs while tasks are out
 
@@ -168,10 +169,7 @@ def map_settled(
     out: dict = {}  # ObjectRef -> item index
     try:
         while True:
-            while len(out) < slots and (deadline is None or time.monotonic() < deadline):
-                k, item = next(queue, (None, None))
-                if k is None:
-                    break
+            for k, item in due_items(queue, slots - len(out), deadline):
                 out[remote.remote(item)] = k
             if not out:
                 return results

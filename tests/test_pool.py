@@ -7,8 +7,11 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+import time
 
 from conftest import tool_env
+
+from pipeline.pool import due_items
 
 # A job that announces its start, runs until the pool's stop event is set, then holds its stop
 # until the parent's signals are over and records that it ended cleanly.
@@ -72,3 +75,12 @@ def test_repeated_ctrl_c_stops_every_job_cleanly_and_raises_once(tmp_path):
     expected = "interrupted after ['ended-0', 'ended-1'] with 0 alive\n"
     assert done.stdout == expected, done.stderr[-2000:]
     assert "Traceback" not in done.stderr and "Exception ignored" not in done.stderr
+
+
+def test_due_items_hands_out_at_most_count_and_nothing_after_the_deadline():
+    queue = iter(enumerate("abcde"))
+    assert due_items(queue, 2, None) == [(0, "a"), (1, "b")]
+    assert due_items(queue, 0, None) == []
+    assert due_items(queue, 5, time.monotonic() - 1.0) == []  # past: nothing taken
+    assert due_items(queue, 5, time.monotonic() + 600.0) == [(2, "c"), (3, "d"), (4, "e")]
+    assert due_items(queue, 5, None) == []  # exhausted
