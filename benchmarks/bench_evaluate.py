@@ -22,11 +22,11 @@ from pathlib import Path
 import torch
 
 from pipeline.generation import GenerateConfig, generate_dataset
-from predictor.config import make_configs
 from predictor.data import TrajectoryDataset
 from predictor.evaluation import predict_baseline, predict_model, score
 from predictor.model import SmoothAttentionPredictor
 from predictor.predictions import Predictions
+from predictor.presets import make_configs
 
 
 def median_seconds(function, repeats: int) -> float:

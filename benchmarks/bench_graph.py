@@ -29,10 +29,10 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from predictor.config import make_configs  # noqa: E402
 from predictor.data import Batch  # noqa: E402
 from predictor.graph import neighbour_graph  # noqa: E402
 from predictor.model import SmoothAttentionPredictor  # noqa: E402
+from predictor.presets import make_configs  # noqa: E402
 from predictor.run_state import make_optimizer  # noqa: E402
 from predictor.training import train_step  # noqa: E402
 

@@ -39,10 +39,11 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from predictor.config import ModelConfig, make_configs, resolve_roles  # noqa: E402
+from predictor.config import ModelConfig, resolve_roles  # noqa: E402
 from predictor.data import Batch  # noqa: E402
 from predictor.evaluation import predict_model  # noqa: E402
 from predictor.model import SmoothAttentionPredictor  # noqa: E402
+from predictor.presets import make_configs  # noqa: E402
 from predictor.run_state import make_optimizer  # noqa: E402
 from predictor.training import train_step  # noqa: E402
 

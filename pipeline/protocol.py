@@ -100,7 +100,7 @@ class Protocol:
     num_test: int = NUM_TEST  # test trajectories per case
     data_seed: int = DATA_SEED
     quick: bool = False  # cap every setting at QUICK_MAX_MAJOR major trajectories
-    preset: str = "paper"  # predictor.config.PRESETS: the model and training configuration
+    preset: str = "paper"  # predictor.presets.PRESETS: the model and training configuration
 
     def counts(self, setting: Setting) -> tuple[int, int]:
         """(num_major, num_minor) generated for a setting; a quick protocol caps the major count."""

@@ -64,7 +64,7 @@ class Job:
     run_dir: str
     save_scenes: bool  # keep predictions of the figure scenes (scenes.npz)
     store_dir: str = ""  # where the results store keeps its eval.json (and scenes.npz); "" none
-    preset: str = "paper"  # predictor.config.PRESETS
+    preset: str = "paper"  # predictor.presets.PRESETS
 
 
 def digest(value: object) -> str:
@@ -92,7 +92,7 @@ def data_spec(protocol: Protocol, setting: Setting) -> DataSpec:
 
 def run_configs(variant: str, seed: int, epochs: int, preset: str = "paper") -> tuple:
     """(ModelConfig, TrainConfig) of a run: the preset's configuration, one torch thread."""
-    from predictor.config import make_configs
+    from predictor.presets import make_configs
 
     return make_configs(variant, None, preset=preset, seed=seed, epochs=epochs, threads=RUN_THREADS)
 

@@ -14,7 +14,9 @@ Every experiment variant of the paper is configuration of one model (see `VARIAN
 For `average` and `correct` the attention has no parameters, so a smoothness term would be a
 constant without gradient; it is fixed to 0.
 
-How configs are stored in checkpoints and run directories, and read back: predictor.stored_config.
+Named presets and the composition of a preset with a variant (`make_configs`):
+predictor.presets. How configs are stored in checkpoints and run directories, and read back:
+predictor.stored_config.
 """
 
 from __future__ import annotations
@@ -433,52 +435,6 @@ VARIANTS: dict[str, Variant] = {
 }
 
 
-# Named settings: (ModelConfig values, TrainConfig values) over the dataclass defaults.
-# "paper": the literal paper model and optimiser (the dataclass defaults).
-# "agent": agent-centric standardised inputs, relative velocity on edges, deviation-scaled
-# agent-frame offsets, an anchored rollout, agent roles as inputs, and a longer cosine schedule
-# with smaller batches (more optimiser steps: 52 training scenes at batch 8 are only 7 steps
-# per epoch), the main agents' loss terms weighted 5x, a cross-fitted linear highway for the
-# agent's own motion and for the attended agents (refitted every epoch, one map per relation,
-# each edge read by its own relation's map and its attended agent's role group's), a learned
-# attention bias per pair of roles, attention that starts with equal shares per neighbour role
-# and scores times 10. docs/PREDICTOR.md has the measurement behind each switch.
-PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
-    "paper": ({}, {}),
-    "agent": (
-        {
-            "frame": "agent",
-            "standardise": True,
-            "edge_velocity": True,
-            "offset_scale": "deviation",
-            "detach_covariance": True,
-            "rollout_prior": "anchored",
-            "num_roles": ROLES_FROM_DATA,
-            "highway_steps": 12,
-            "highway_attended": True,
-            "attended_refit": True,
-            "highway_relation": True,
-            "attended_fit": "edge_relations",
-            "role_attention_bias": True,
-            "role_balanced_attention": True,
-            "highway_head_groups": True,
-            "attention_gain": 10.0,
-        },
-        {
-            "lr_schedule": "cosine",
-            "batch_size": 4,
-            "epochs": 90,
-            "lr": 3e-3,
-            "rollout_feed": "mean",
-            "mean_loss": "displacement",
-            "one_step_needs_previous": True,
-            "main_agent_weight": 5.0,
-        },
-    ),
-}
-DEFAULT_PRESET = "paper"  # the preset make_configs and tools/train.py use unless told
-
-
 def resolve_roles(config: ModelConfig, role_names: tuple[str, ...] | list[str]) -> ModelConfig:
     """`config` with num_roles = ROLES_FROM_DATA replaced by the number of role names of the
     training data; ValueError if a fixed number does not match them."""
@@ -491,54 +447,6 @@ def resolve_roles(config: ModelConfig, role_names: tuple[str, ...] | list[str]) 
             f"the model reads {config.num_roles} agent roles; the data has {len(role_names)}"
         )
     return config
-
-
-def make_configs(
-    variant: str,
-    model_overrides: dict[str, Any] | None = None,
-    preset: str = DEFAULT_PRESET,
-    **train_overrides: Any,
-) -> tuple[ModelConfig, TrainConfig]:
-    """Model and training configs for a variant and preset (`PRESETS`), with field overrides.
-
-    Raises ValueError for an unknown variant or preset, an unknown field, or a nonzero beta2 on
-    a variant that has no smoothness term.
-    """
-    if variant not in VARIANTS:
-        raise ValueError(f"unknown variant {variant!r}; choose from {sorted(VARIANTS)}")
-    if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}; choose from {sorted(PRESETS)}")
-    spec = VARIANTS[variant]
-    preset_model, preset_train = PRESETS[preset]
-    if not spec.sequence_loss and preset_model.get("rollout_prior") == "anchored":
-        # only the rollout loss trains F_roll: without it the anchored rollout would stay
-        # constant velocity, so such a variant rolls out its one-step model (the paper's S-Attn)
-        if (model_overrides or {}).get("rollout_prior") == "anchored":
-            raise ValueError(f"variant {variant!r} has no rollout loss to train rollout_prior")
-        # the highway sits in the anchored rollout's prior, so it goes with it
-        no_highway = {
-            "highway_steps": 0,
-            "highway_attended": False,
-            "attended_refit": False,
-            "attended_fit": "mean",
-            "highway_relation": False,
-            "highway_head_groups": False,
-        }
-        preset_model = {**preset_model, "rollout_prior": "previous", **no_highway}
-        model_overrides = {**(model_overrides or {}), **no_highway}
-    model_overrides = {**preset_model, **(model_overrides or {})}
-    train_overrides = {**preset_train, **train_overrides}
-    if "attention_mode" in model_overrides:
-        raise ValueError("attention_mode is fixed by the variant")
-    model = build_config(ModelConfig, {**model_overrides, "attention_mode": spec.attention_mode})
-    if not spec.smooth and train_overrides.get("beta2", 0.0):
-        raise ValueError(f"variant {variant!r} has no smoothness term; beta2 must be 0")
-    if "sequence_loss" in train_overrides:
-        raise ValueError("sequence_loss is fixed by the variant")
-    train_values = {**train_overrides, "variant": variant, "sequence_loss": spec.sequence_loss}
-    if not spec.smooth:
-        train_values["beta2"] = 0.0
-    return model, build_config(TrainConfig, train_values)
 
 
 def build_config(cls: type, values: dict[str, Any], complete: bool = False) -> Any:

@@ -10,10 +10,11 @@ import pytest
 import torch
 
 from predictor.agent_frame import agent_frames, rotate, rotate_tril
-from predictor.config import PRESETS, ModelConfig, TrainConfig, make_configs, resolve_roles
+from predictor.config import ModelConfig, TrainConfig, resolve_roles
 from predictor.losses import LossWeights, compute_loss
 from predictor.model import SmoothAttentionPredictor
 from predictor.outputs import Gaussian2D, ModelOutput
+from predictor.presets import PRESETS, make_configs
 from predictor.training import learning_rate
 
 torch.set_num_threads(1)

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from predictor.config import PRESETS, VARIANTS, ModelConfig, TrainConfig, make_configs
+from predictor.config import VARIANTS, ModelConfig, TrainConfig
+from predictor.presets import PRESETS, make_configs
 
 AGENT = {"frame": "agent"}
 ANCHORED = {**AGENT, "rollout_prior": "anchored"}

@@ -12,11 +12,11 @@ import pytest
 from conftest import downgrade_to_schema_1, make_meta, make_trajectory_set
 
 from predictor.baselines import RidgeBaseline, RidgeConfig, displacement_heading
-from predictor.config import make_configs
 from predictor.evaluation import EvaluationError, evaluate_baseline
 from predictor.format import SPLITS, write_dataset
 from predictor.format_reader import read_dataset
 from predictor.metrics import prediction_mask
+from predictor.presets import make_configs
 from predictor.run_files import RunError
 from predictor.training import train
 

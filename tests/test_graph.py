@@ -9,7 +9,7 @@ import pytest
 import torch
 from dense_reference import DensePredictor, dense_input_stats
 
-from predictor.config import ModelConfig, make_configs, resolve_roles
+from predictor.config import ModelConfig, resolve_roles
 from predictor.graph import (
     adjacency,
     anchor_steps,
@@ -21,6 +21,7 @@ from predictor.graph import (
 from predictor.losses import LossWeights, compute_loss
 from predictor.model import SmoothAttentionPredictor
 from predictor.outputs import expand_attention
+from predictor.presets import make_configs
 
 torch.set_num_threads(1)
 

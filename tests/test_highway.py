@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from predictor.agent_frame import agent_frames
-from predictor.config import ModelConfig, make_configs
+from predictor.config import ModelConfig
 from predictor.highway import (
     CROSS_FIT_FOLDS,
     HIGHWAY_ALPHAS,
@@ -26,6 +26,7 @@ from predictor.highway import (
 )
 from predictor.model import SmoothAttentionPredictor
 from predictor.outputs import edge_index
+from predictor.presets import make_configs
 
 torch.set_num_threads(1)
 

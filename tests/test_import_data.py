@@ -13,11 +13,11 @@ from conftest import run_tool
 from pipeline.importers.common import ImportDataError, Tracks, frame_step
 from pipeline.importers.eth_ucy import EthUcyConfig, import_eth_ucy
 from pipeline.importers.interaction import InteractionConfig, import_interaction
-from predictor.config import make_configs
 from predictor.data import TrajectoryDataset
 from predictor.evaluation import evaluate_baseline, evaluate_run
 from predictor.format import SPLITS
 from predictor.format_reader import read_dataset, read_split
+from predictor.presets import make_configs
 from predictor.training import train
 
 

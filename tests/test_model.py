@@ -5,11 +5,12 @@ from __future__ import annotations
 import pytest
 import torch
 
-from predictor.config import ModelConfig, make_configs
+from predictor.config import ModelConfig
 from predictor.graph import neighbour_graph
 from predictor.losses import attention_tv
 from predictor.model import SmoothAttentionPredictor
 from predictor.outputs import Gaussian2D, edge_index, expand_attention
+from predictor.presets import make_configs
 
 torch.set_num_threads(1)
 

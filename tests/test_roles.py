@@ -9,8 +9,9 @@ import math
 import pytest
 import torch
 
-from predictor.config import ROLES_FROM_DATA, ModelConfig, make_configs, resolve_roles
+from predictor.config import ROLES_FROM_DATA, ModelConfig, resolve_roles
 from predictor.model import SmoothAttentionPredictor
+from predictor.presets import make_configs
 
 torch.set_num_threads(1)
 

@@ -93,7 +93,7 @@ def test_settings_use_the_v1_scenarios():
 
 
 def test_cache_keys_leave_out_added_switches_at_their_former_values():
-    from predictor.config import make_configs
+    from predictor.presets import make_configs
     from predictor.stored_config import ADDED_MODEL_FIELDS, config_key, config_to_dict
 
     model, train = make_configs("ours", preset="paper", seed=0, epochs=5)

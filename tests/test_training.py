@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 import torch
 
-from predictor.config import make_configs
 from predictor.data import TrajectoryDataset, collate_batch
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 from predictor.model import SmoothAttentionPredictor
+from predictor.presets import make_configs
 from predictor.run_files import RunError
 from predictor.run_state import resume_configs
 from predictor.training import train, train_step

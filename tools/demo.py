@@ -27,10 +27,10 @@ import numpy as np
 from carlo_lite import render_rgb
 from pipeline.cli import ArgumentParser, fail, run_main, writing
 from pipeline.generation import DEFAULT_SCENARIO, GenerateConfig, generate_dataset
-from predictor.config import make_configs
 from predictor.evaluation import evaluate_baseline, evaluate_run
 from predictor.format_reader import read_meta, read_split
 from predictor.plots import plot_attention, plot_predictions, plot_samples, save_figure
+from predictor.presets import make_configs
 from predictor.training import train
 from scenarios import SCENARIOS
 from scenarios.rollout import advance

@@ -95,7 +95,7 @@ from pipeline.protocol import (
 from pipeline.ray_backend import RayUnavailableError
 from pipeline.reproduction import reproduce
 from pipeline.result_store import DEFAULT_STORE
-from predictor.config import DEFAULT_PRESET, PRESETS
+from predictor.presets import DEFAULT_PRESET, PRESETS
 
 
 def parse_args(argv: list[str] | None = None):

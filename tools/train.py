@@ -16,23 +16,21 @@ from pathlib import Path
 from pipeline.cli import ArgumentParser, fail, require_file, run_main
 from predictor.config import (
     ATTENDED_FITS,
-    DEFAULT_PRESET,
     FRAMES,
     LR_SCHEDULES,
     MEAN_LOSSES,
     MEAN_PRIORS,
     NEIGHBOURS,
     OFFSET_SCALES,
-    PRESETS,
     ROLLOUT_FEEDS,
     ROLLOUT_PRIORS,
     VARIANTS,
     ModelConfig,
     TrainConfig,
-    make_configs,
 )
 from predictor.evaluation import CheckpointError
 from predictor.format import FormatError
+from predictor.presets import DEFAULT_PRESET, PRESETS, make_configs
 from predictor.run_files import RunError
 from predictor.run_state import RESUME_MAY_CHANGE, resume_configs
 from predictor.training import train
@@ -158,7 +156,7 @@ def parse_args(argv: list[str] | None = None):
         choices=sorted(PRESETS),
         help=f"named configuration the options below change (default {DEFAULT_PRESET}): "
         "paper = the paper's literal model and optimiser; agent = agent-centric standardised "
-        "inputs, displacement-trained means (predictor/config.py: PRESETS)",
+        "inputs, displacement-trained means (predictor/presets.py: PRESETS)",
     )
     defaults_t, defaults_m = TrainConfig(), ModelConfig()
     for name in TRAIN_FLAGS:

@@ -44,8 +44,8 @@ def train_and_evaluate(args: tuple[str, str, float, int, int, str]) -> str:
     """Train Ours with one beta2 and seed, evaluate best.pt on the test split; the run's folder."""
     import torch
 
-    from predictor.config import make_configs
     from predictor.evaluation import evaluate_run
+    from predictor.presets import make_configs
     from predictor.run_files import atomic_write_text
     from predictor.training import train
 
@@ -98,7 +98,7 @@ def main() -> None:
     parser.add_argument("--beta2", default="0,0.01,0.1,1,10", help="comma-separated weights")
     parser.add_argument("--seeds", type=int, default=5, help="training seeds 0 .. N-1")
     parser.add_argument("--epochs", type=int, default=90, help="training epochs")
-    parser.add_argument("--preset", default="agent", help="predictor/config.py PRESETS")
+    parser.add_argument("--preset", default="agent", help="predictor/presets.py PRESETS")
     parser.add_argument("--jobs", type=int, default=2, help="parallel processes (1 thread each)")
     parser.add_argument("--out-dir", type=Path, default=Path("outputs/prior_weight"))
     args = parser.parse_args()

@@ -44,8 +44,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_training import ROLE_NAMES, synthetic_batch  # noqa: E402
 
-from predictor.config import make_configs, resolve_roles  # noqa: E402
+from predictor.config import resolve_roles  # noqa: E402
 from predictor.model import SmoothAttentionPredictor  # noqa: E402
+from predictor.presets import make_configs  # noqa: E402
 from predictor.run_state import make_optimizer  # noqa: E402
 from predictor.training import train_step  # noqa: E402
 

@@ -282,7 +282,7 @@ def how_produced(report: Report) -> str:
             f"{machine.torch}, {machine.torch_threads_per_job} torch thread per job, "
             f"{machine.jobs} parallel jobs; Python {machine.python}",
             f"- Configuration preset: `{getattr(protocol, 'preset', 'paper')}` "
-            "(predictor/config.py `PRESETS`); "
+            "(predictor/presets.py `PRESETS`); "
             f"epochs: {protocol.epochs}; "
             f"seeds per trained variant: {protocol.seeds} ({seeds}); "
             f"baselines ({', '.join(f'`{b}`' for b in BASELINES)}) once per setting "
