@@ -460,12 +460,8 @@ class SmoothAttentionPredictor(InputStatistics, HighwayMaps, nn.Module):
         """F_pred(o_node) (..., 5): mean offset (2) and Cholesky raw values (3); with
         `detach_covariance` the last three see the features through a stop-gradient; with
         `anchored` the mean offset comes from F_roll (anchored rollout steps)."""
-        if self.f_cov is None:
-            raw = self.f_pred(o_node)
-            cov = raw[..., 2:]
-        else:
-            raw = self.f_pred(o_node)
-            cov = self.f_cov(o_node.detach())
+        raw = self.f_pred(o_node)
+        cov = raw[..., 2:] if self.f_cov is None else self.f_cov(o_node.detach())
         offset = self.f_roll(o_node) if anchored else raw[..., :2]
         return torch.cat([offset, cov], -1)
 
