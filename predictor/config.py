@@ -205,6 +205,22 @@ class ModelConfig:
     # the other main car is diluted by the distractors on the same side. One kind (as off)
     # without roles.
     highway_head_groups: bool = False
+    # With attended_refit: each highway map is also fitted in a form that is zero at constant
+    # velocity (the own history's velocities minus the last one and its accelerations, no
+    # intercept, uncentred; predictor.highway.constant_velocity_transform) and the one with
+    # the lower cross-validated error on the training scenes is kept, per map. The affine map
+    # fitted on both of Halting Car v1's cases predicts part of the `stop` case's braking for
+    # a leader that drives on at constant speed (0.810 m off in the `go` case, where constant
+    # velocity is exact; docs/PREDICTOR.md), and Ours inherited it (all-car ADE 0.049 against
+    # constant velocity's 0.043 m).
+    highway_zero_at_cv: bool = False
+    # [m/step] With attended_refit: the least standard deviation by which the highway's refit
+    # scales a feature (0: scikit-learn's StandardScaler). Positions are float32, so the
+    # velocities of a car at constant speed a few hundred metres out differ by rounding
+    # (~8e-6 m/step, Halting Car v1's leader); standardised, that rounding became a
+    # unit-variance feature with coefficients up to 1.3e4, and the `go` case's leader was
+    # predicted 0.34 m off by the highway alone even in the zero-at-constant-velocity form.
+    highway_min_std: float = 0.0
     # A learnt bias per pair of roles (attending, attended) added to the learned attention's
     # scores: "this kind of agent attends to that kind" is one parameter whose gradient sums
     # over every such pair in the data, not a pattern the edge LSTM's states must carry.
@@ -275,6 +291,7 @@ class ModelConfig:
             "neighbour_k": (self.neighbour_k >= 1, ">= 1"),
             "highway_steps": (self.highway_steps == 0 or self.highway_steps >= 2, "0 or >= 2"),
             "highway_horizon": (self.highway_horizon >= 1, ">= 1"),
+            "highway_min_std": (self.highway_min_std >= 0, ">= 0"),
         }
         require_rules(self, choices, bounds)
         agent, relations = self.frame == "agent", self.attended_fit == "edge_relations"
@@ -287,6 +304,8 @@ class ModelConfig:
             ("attended_fit", self.highway_relation or not relations, "highway_relation"),
             ("highway_relation", self.attended_refit, "attended_refit"),
             ("refit_on_prior", self.attended_refit, "attended_refit"),
+            ("highway_zero_at_cv", self.attended_refit, "attended_refit"),
+            ("highway_min_std", self.attended_refit, "attended_refit"),
             ("highway_head_groups", relations, "attended_fit='edge_relations'"),
             ("role_bias_by_group", self.role_attention_bias, "role_attention_bias"),
             ("role_bias_by_group", bool(self.highway_role_groups), "highway_role_groups"),

@@ -40,7 +40,7 @@ from torch import Tensor
 
 from predictor.agent_frame import rotate
 from predictor.baselines import fit_ridge_cv
-from predictor.moment_ridge import cross_validated, group_statistics
+from predictor.moment_ridge import RidgeForm, cross_validated, group_statistics
 
 HIGHWAY_ALPHAS: tuple[float, ...] = tuple(float(a) for a in np.logspace(-3, 4, 15))
 HIGHWAY_FOLDS = 5  # grouped cross-validation folds (fewer if there are fewer training scenes)
@@ -85,6 +85,24 @@ def history_features(
     keep = [k for k in range(features.shape[-1]) if k != 2 * steps - 1]
     features = features[..., keep]  # (B, N, 4 * steps - 3)
     return torch.where(usable.unsqueeze(-1), features, 0.0), usable
+
+
+def constant_velocity_transform(steps: int, num_observed: int, extra: int = 0) -> Tensor:
+    """The linear map T (F_own - 1, F_own + extra) from `history_features`' features
+    (F_own = 4 * steps - 3), followed by `extra` others (the attended highway's, which it
+    drops), to the features of the highway's form that is zero at constant velocity
+    (`ModelConfig.highway_zero_at_cv`): each observed velocity minus the last one (the last's
+    longitudinal component dropped; its lateral one is zero) and the accelerations. A
+    constant-velocity history maps to zeros, so a map of these features without intercept
+    predicts constant velocity for it, whatever the other agents do. Velocities missing from a
+    short history stay zero."""
+    span = min(steps, num_observed - 1)
+    own = 4 * steps - 3
+    last = 2 * steps - 2  # the last velocity's longitudinal component
+    transform = torch.eye(own + extra, dtype=torch.float64)
+    for slot in range(steps - span, steps - 1):
+        transform[2 * slot, last] = -1.0
+    return torch.cat([transform[:last], transform[last + 1 : own]])
 
 
 def future_offsets(
@@ -136,15 +154,27 @@ def fit_highway_subsets(
     subsets: list[Tensor],
     moments: Tensor | None = None,
     weights: Tensor | None = None,
+    zero_at_cv: Tensor | None = None,
+    min_std: float = 0.0,
 ) -> list[tuple[Tensor, Tensor, dict[int, float]]]:
     """`fit_highway` on the scenes of each subset (B,) bool, in one pass: the same maps and
     alphas as fitting each subset's scenes alone (bit for bit, tested), with the per-scene
     sums of the moment fit (`group_statistics`) computed once for all subsets and one BLAS
     thread limit for all the solves. For the cross-fitting's six fits this took the agent
     preset's refit on Halting Car v1's 52 training scenes from 5.4-5.7 s to 3.3-3.4 s (beside
-    three trainings on 2 cores; benchmarks/README.md)."""
+    three trainings on 2 cores; benchmarks/README.md).
+
+    zero_at_cv (F', F), with moments: each map is also fitted in the form that is zero at
+    constant velocity (`ModelConfig.highway_zero_at_cv`): on the features mapped by this
+    transform (`constant_velocity_transform`), uncentred, with no intercept; per role and
+    subset the form with the lower cross-validated error is kept (its map on the raw
+    features, bias zero). min_std, with moments: the least standardising scale of a feature
+    (`ModelConfig.highway_min_std`)."""
     if weights is not None and moments is None:
         raise ValueError("fit_highway: sample weights need moments")
+    if (zero_at_cv is not None or min_std > 0) and moments is None:
+        raise ValueError("fit_highway: the zero-at-constant-velocity form and min_std need moments")
+    affine, zero_form = RidgeForm(min_std=min_std), RidgeForm(centred=False, min_std=min_std)
     num_features, num_pred = features.shape[-1], offsets.shape[2]
     fitted = min(num_pred, horizon)
     results = [
@@ -169,16 +199,29 @@ def fit_highway_subsets(
             else:
                 second = moments[rows].double().numpy()  # (K, F, F)
                 mass = np.ones(len(x)) if weights is None else weights[rows].double().numpy()
-                fits = _moment_fits(x, second, y, mass, groups, chosen)
+                fits = _moment_fits(x, second, y, mass, groups, chosen, affine)
+                if zero_at_cv is not None:
+                    transform = zero_at_cv.double().numpy()  # (F', F)
+                    zero = _moment_fits(
+                        x @ transform.T,
+                        transform @ second @ transform.T,
+                        y,
+                        mass,
+                        groups,
+                        chosen,
+                        zero_form,
+                    )
+                    fits = [_lower_score(a, b, transform) for a, b in zip(fits, zero, strict=True)]
             for (weight, bias, alphas), fit in zip(results, fits, strict=True):
                 if fit is None:
                     continue
-                coef, intercept, alphas[role] = fit
+                coef, intercept, alphas[role], _ = fit
                 _store_map(weight[role], bias[role], coef, intercept, fitted)
     return [(weight.float(), bias.float(), alphas) for weight, bias, alphas in results]
 
 
-Fit = tuple[np.ndarray, np.ndarray, float]  # coef (F, D) and intercept (D,) on raw features, alpha
+# coef (F, D) and intercept (D,) on raw features, alpha, cross-validated mean squared error
+Fit = tuple[np.ndarray, np.ndarray, float, float]
 
 
 def _plain_fits(
@@ -194,7 +237,7 @@ def _plain_fits(
         model, alpha = fit_ridge_cv(x[keep], y[keep], groups[keep], HIGHWAY_ALPHAS, HIGHWAY_FOLDS)
         scaler, ridge = model[0], model[-1]
         coef = ridge.coef_.T / scaler.scale_[:, None]  # (F, D) on raw features
-        fits.append((coef, ridge.intercept_ - scaler.mean_ @ coef, alpha))
+        fits.append((coef, ridge.intercept_ - scaler.mean_ @ coef, alpha, float("nan")))
     return fits
 
 
@@ -205,10 +248,12 @@ def _moment_fits(
     mass: np.ndarray,
     groups: np.ndarray,
     subsets: list[np.ndarray],
+    form: RidgeForm,
 ) -> list[Fit | None]:
     """fit_moment_ridge on the samples of each subset's scenes, from per-scene sums computed
     once: a subset's sums are its scenes' rows of them, and its samples keep their order, so
-    each fit is the one on the subset alone. None with < 2 scenes."""
+    each fit is the one on the subset alone. None with < 2 scenes. `form`: centring and the
+    least scale (`RidgeForm`)."""
     if not np.all(mass > 0):
         raise ValueError("fit_highway: sample weights must be positive where usable")
     names, inverse = np.unique(groups, return_inverse=True)
@@ -232,9 +277,21 @@ def _moment_fits(
                 tuple(s[kept] for s in stats),
                 HIGHWAY_ALPHAS,
                 HIGHWAY_FOLDS,
+                form,
             )
         )
     return fits
+
+
+def _lower_score(affine: Fit | None, zero: Fit | None, transform: np.ndarray) -> Fit | None:
+    """Of a subset's two fits, the one with the lower cross-validated error (the affine one on
+    a tie); the zero-at-constant-velocity fit's coefficients mapped back to the raw features
+    (F, D) through the transform (F', F). Both were scored on the same held-out samples (the
+    folds follow the groups' sizes only)."""
+    if affine is None or zero is None or affine[3] <= zero[3]:
+        return affine
+    coef, intercept, alpha, score = zero
+    return transform.T @ coef, intercept, alpha, score
 
 
 def _store_map(
@@ -302,15 +359,28 @@ def fit_cross_fitted(
     horizon: int,
     moments: Tensor | None = None,
     weights: Tensor | None = None,
+    zero_at_cv: Tensor | None = None,
+    min_std: float = 0.0,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """`fit_highway` on all scenes (B, ...) and once without each cross-fitting fold (scene b is
     in fold b mod CROSS_FIT_FOLDS): weight (R, F, horizon, 2), bias (R, horizon, 2) and the
-    fold maps (CROSS_FIT_FOLDS, R, F, horizon, 2), (CROSS_FIT_FOLDS, R, horizon, 2)."""
+    fold maps (CROSS_FIT_FOLDS, R, F, horizon, 2), (CROSS_FIT_FOLDS, R, horizon, 2).
+    zero_at_cv, min_std: as `fit_highway_subsets`'."""
     fold = fold_of(torch.arange(features.shape[0]), CROSS_FIT_FOLDS)  # (B,)
     subsets = [torch.ones_like(fold, dtype=torch.bool)]
     subsets += [fold != k for k in range(CROSS_FIT_FOLDS)]
     fits = fit_highway_subsets(
-        features, offsets, samples, roles, num_roles, horizon, subsets, moments, weights
+        features,
+        offsets,
+        samples,
+        roles,
+        num_roles,
+        horizon,
+        subsets,
+        moments,
+        weights,
+        zero_at_cv,
+        min_std,
     )
     fold_weight = torch.stack([weight for weight, _, _ in fits[1:]])
     fold_bias = torch.stack([bias for _, bias, _ in fits[1:]])

@@ -21,6 +21,7 @@ from predictor.highway import (
     attended_changes,
     change_bounds,
     clamp_changes,
+    constant_velocity_transform,
     edge_relations,
     fit_cross_fitted,
     fold_of,
@@ -253,11 +254,16 @@ class HighwayMaps:
             torch.cat(column) for column in zip(*parts)
         )
         features = torch.cat([own, attended], -1)  # (B, N, F_own + F_att)
-        moments = None
-        if cfg.attended_fit != "mean":  # rows (own_i, z_ij) weighted by theta_ij
+        moments = zero_at_cv = None
+        if cfg.attended_fit != "mean" or cfg.highway_zero_at_cv or cfg.highway_min_std > 0:
             moments = features.unsqueeze(-1) * features.unsqueeze(-2)  # (B, N, F, F)
+        if cfg.attended_fit != "mean":  # rows (own_i, z_ij) weighted by theta_ij
             split = own.shape[-1]
             moments[..., split:, split:] = second
+        if cfg.highway_zero_at_cv:
+            zero_at_cv = constant_velocity_transform(
+                cfg.highway_steps, num_observed, attended.shape[-1]
+            )
         weight, bias, fold_weight, fold_bias = fit_cross_fitted(
             features,
             offsets,
@@ -267,6 +273,8 @@ class HighwayMaps:
             cfg.highway_horizon,
             moments,
             masses if cfg.attended_fit == "edge_relations" else None,
+            zero_at_cv,
+            cfg.highway_min_std,
         )
         split = own.shape[-1]
         scale = self.anchor_std.view(1, 1, 1, 2)  # attended maps are in units of anchor_std

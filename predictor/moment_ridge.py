@@ -9,10 +9,15 @@ one sample per agent (N samples with F x F moments, instead of N (N-1) weighted 
 cross-validation's folds are sums of per-group statistics. Under "edge_relations" an agent is
 one sample per relation (ahead, behind) whose rows weigh that relation's share of its attention
 (`weights`). With one row per sample
-(E[x x^T] = E[x] E[x]^T) it is scikit-learn's StandardScaler + Ridge (tested).
+(E[x x^T] = E[x] E[x]^T) it is scikit-learn's StandardScaler + Ridge (tested); with
+`RidgeForm(centred=False)` it is StandardScaler(with_mean=False) + Ridge(fit_intercept=False), a
+map that is zero where the features are (the highway's form that is zero at constant velocity,
+`ModelConfig.highway_zero_at_cv`).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -20,6 +25,18 @@ from threadpoolctl import threadpool_limits
 # a feature whose variance is below this fraction of its mean square counts as constant
 # (scaled by 1, as scikit-learn does): the moments give a variance only to rounding
 CONSTANT_RELATIVE_VARIANCE = 1e-12
+
+
+@dataclass(frozen=True)
+class RidgeForm:
+    """How the regression treats its features. centred: features and targets centred, with
+    an intercept (scikit-learn's defaults); off, the raw moments and no intercept, so the map
+    is zero where the features are. min_std: the least standard deviation a feature is scaled
+    by (0: scikit-learn's), so that a feature constant up to rounding is not blown up to unit
+    variance and read (`ModelConfig.highway_min_std`)."""
+
+    centred: bool = True
+    min_std: float = 0.0
 
 
 def fit_moment_ridge(
@@ -30,6 +47,7 @@ def fit_moment_ridge(
     alphas: tuple[float, ...],
     folds: int,
     weights: np.ndarray | None = None,
+    form: RidgeForm = RidgeForm(),
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Ridge on standardised features from each sample's weighted rows, given by their mean
     (K, F) and second moment (K, F, F) (row weights summing to one per sample, or to the
@@ -39,7 +57,8 @@ def fit_moment_ridge(
     as Ridge on StandardScaler's output does. Alpha is the one of `alphas` with the smallest
     (weighted) mean squared error of the held-out samples' predictions E_k[x] b + c, averaged
     over min(folds, groups) folds of whole groups (scikit-learn's GroupKFold assignment, by
-    sample counts). Returns coef (F, D), intercept (D,) and that alpha."""
+    sample counts). `form`: centring and the least scale (`RidgeForm`). Returns coef (F, D),
+    intercept (D,) and that alpha."""
     names, inverse = np.unique(groups, return_inverse=True)
     if len(names) < 2:
         raise ValueError(f"ridge cross-validation needs at least two groups, got {len(names)}")
@@ -53,7 +72,8 @@ def fit_moment_ridge(
     # it. On 2 cores with two trainings running, a refit of the agent preset on Halting Car
     # v1's 52 training scenes took 7.5-9.1 s with them and 5.9-6.6 s with one
     with threadpool_limits(limits=1):
-        return cross_validated(mean, target, weights, inverse, stats, alphas, folds)
+        fit = cross_validated(mean, target, weights, inverse, stats, alphas, folds, form)
+    return fit[:3]
 
 
 def cross_validated(
@@ -64,14 +84,17 @@ def cross_validated(
     stats: tuple[np.ndarray, ...],
     alphas: tuple[float, ...],
     folds: int,
-) -> tuple[np.ndarray, np.ndarray, float]:
+    form: RidgeForm = RidgeForm(),
+) -> tuple[np.ndarray, np.ndarray, float, float]:
     """`fit_moment_ridge`'s alpha search and final fit from the per-group statistics
-    (`group_statistics`); inverse (K,) is each sample's group index. The caller limits the
+    (`group_statistics`); inverse (K,) is each sample's group index. Returns coef, intercept,
+    the chosen alpha and its cross-validated score (`alpha_scores`). The caller limits the
     BLAS threads (see fit_moment_ridge)."""
-    scores = alpha_scores(mean, target, weights, inverse, stats, alphas, folds)
-    best = float(alphas[int(np.argmin(scores))])  # the first of the best, as GridSearchCV
-    coef, intercept = _solve(*(s.sum(0) for s in stats), best)
-    return coef, intercept, best
+    scores = alpha_scores(mean, target, weights, inverse, stats, alphas, folds, form)
+    chosen = int(np.argmin(scores))  # the first of the best, as GridSearchCV
+    best = float(alphas[chosen])
+    coef, intercept = _solve(*(s.sum(0) for s in stats), best, form)
+    return coef, intercept, best, float(scores[chosen])
 
 
 def alpha_scores(
@@ -82,6 +105,7 @@ def alpha_scores(
     stats: tuple[np.ndarray, ...],
     alphas: tuple[float, ...],
     folds: int,
+    form: RidgeForm = RidgeForm(),
 ) -> np.ndarray:
     """Cross-validated score of each alpha (A,): the held-out samples' (weighted) mean squared
     error, averaged over the folds (GridSearchCV's mean test score, negated). Each fold's fits
@@ -95,7 +119,7 @@ def alpha_scores(
     for fold in range(num_folds):
         held = fold_of_group[inverse] == fold  # (K,)
         train = tuple(s[fold_of_group != fold].sum(0) for s in stats)
-        squared = _alpha_path(*train, mean[held], target[held], path)  # (A, K_held)
+        squared = _alpha_path(*train, mean[held], target[held], path, form)  # (A, K_held)
         scores += squared @ (weights[held] / weights[held].sum())
     return scores / num_folds
 
@@ -143,15 +167,18 @@ def _group_folds(sizes: np.ndarray, folds: int) -> np.ndarray:
     return fold_of_group
 
 
-def _centred(
+def _moments(
     samples: float,
     sum_x: np.ndarray,
     sum_y: np.ndarray,
     sum_xx: np.ndarray,
     sum_xy: np.ndarray,
+    form: RidgeForm,
 ) -> tuple[np.ndarray, ...]:
     """Means x_bar (F,), y_bar (D,), centred moments G_c (F, F), C_c (F, D) and the features'
-    variances s^2 = diag(G_c) / n (1 for a constant feature, as scikit-learn scales it)."""
+    variances s^2 = diag(G_c) / n (1 for a constant feature, as scikit-learn scales it; at
+    least form.min_std^2). Uncentred (`RidgeForm`): zero means and the raw moments sum_xx,
+    sum_xy (a constant feature is then a feature like any other), the variances as centred."""
     x_bar, y_bar = sum_x / samples, sum_y / samples
     gram = sum_xx - samples * np.outer(x_bar, x_bar)
     cross = sum_xy - samples * np.outer(x_bar, y_bar)
@@ -163,10 +190,13 @@ def _centred(
     mean_square = np.diag(sum_xx) / samples
     constant = variance <= np.maximum(CONSTANT_RELATIVE_VARIANCE * mean_square, 1e-20)
     # centred, a constant feature is zero: its rows of the moments are rounding, dropped
+    variance = np.maximum(np.where(constant, 1.0, variance), form.min_std**2)
+    if not form.centred:
+        return np.zeros_like(x_bar), np.zeros_like(y_bar), sum_xx, sum_xy, variance
     gram[constant] = 0.0
     gram[:, constant] = 0.0
     cross[constant] = 0.0
-    return x_bar, y_bar, gram, cross, np.where(constant, 1.0, variance)
+    return x_bar, y_bar, gram, cross, variance
 
 
 def _solve(
@@ -176,10 +206,12 @@ def _solve(
     sum_xx: np.ndarray,
     sum_xy: np.ndarray,
     alpha: float,
+    form: RidgeForm,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Coefficients on raw features (F, D) and intercept (D,) of the standardised ridge:
-    (G_c + alpha diag(s^2)) b = C_c with the centred moments G_c, C_c and s^2 (`_centred`)."""
-    x_bar, y_bar, gram, cross, variance = _centred(samples, sum_x, sum_y, sum_xx, sum_xy)
+    (G_c + alpha diag(s^2)) b = C_c with the centred moments G_c, C_c and s^2 (`_moments`;
+    uncentred, the raw moments and a zero intercept)."""
+    x_bar, y_bar, gram, cross, variance = _moments(samples, sum_x, sum_y, sum_xx, sum_xy, form)
     coef = np.linalg.solve(gram + alpha * np.diag(variance), cross)
     return coef, y_bar - x_bar @ coef
 
@@ -193,12 +225,13 @@ def _alpha_path(
     held_x: np.ndarray,
     held_y: np.ndarray,
     alphas: np.ndarray,
+    form: RidgeForm,
 ) -> np.ndarray:
     """Mean squared error over the outputs of each held-out sample (A, K) under `_solve`'s
     fit for each alpha (A,), equal to it up to rounding: with S = diag(s) and the standardised
     gram S^-1 G_c S^-1 = Q diag(lambda) Q^T, b = S^-1 Q diag(1 / (lambda + alpha)) Q^T S^-1 C_c,
     so one eigendecomposition serves every alpha."""
-    x_bar, y_bar, gram, cross, variance = _centred(samples, sum_x, sum_y, sum_xx, sum_xy)
+    x_bar, y_bar, gram, cross, variance = _moments(samples, sum_x, sum_y, sum_xx, sum_xy, form)
     inverse_scale = 1.0 / np.sqrt(variance)
     standard_gram = gram * inverse_scale[:, None] * inverse_scale[None, :]
     eigenvalues, vectors = np.linalg.eigh(standard_gram)
