@@ -92,6 +92,8 @@ def make_configs(
             "attended_fit": "mean",
             "highway_relation": False,
             "highway_head_groups": False,
+            "highway_zero_at_cv": False,
+            "highway_min_std": 0.0,
         }
         preset_model = {**preset_model, "rollout_prior": "previous", **no_highway}
         model_overrides = {**(model_overrides or {}), **no_highway}

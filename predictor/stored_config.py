@@ -41,6 +41,8 @@ ADDED_MODEL_FIELDS: dict[str, Any] = {
     "attended_fit": "mean",
     "highway_relation": False,
     "highway_head_groups": False,
+    "highway_zero_at_cv": False,
+    "highway_min_std": 0.0,
     "role_attention_bias": False,
     "role_bias_by_group": False,
     "role_balanced_attention": False,
