@@ -7,6 +7,7 @@ import math
 
 import pytest
 import torch
+from torch import Tensor
 
 from predictor.agent_frame import agent_frames
 from predictor.config import ModelConfig
@@ -15,6 +16,7 @@ from predictor.highway import (
     HIGHWAY_ALPHAS,
     attended_changes,
     change_bounds,
+    constant_velocity_transform,
     fit_cross_fitted,
     fit_highway,
     fit_highway_subsets,
@@ -382,3 +384,78 @@ def test_attended_highway_needs_the_highway_and_s_attn_drops_it():
         ModelConfig(**ANCHORED, highway_attended=True)
     model, _ = make_configs("s_attn", {"highway_attended": True}, preset="agent")
     assert not model.highway_attended and model.highway_steps == 0
+
+
+def constant_and_turning_histories(observed: int) -> tuple[Tensor, Tensor, Tensor]:
+    """Positions (T, B=1, N=2, 2), float64: agent 0 at constant velocity (3, 1) m/step, agent 1
+    turning; all present; each agent's frame rotation (B, N, 2)."""
+    t = torch.arange(observed, dtype=torch.float64)
+    straight = torch.stack([3.0 * t, 1.0 * t], -1)
+    turning = torch.stack([2.0 * t, 0.05 * t**2], -1)
+    pos = torch.stack([straight, turning], 1).unsqueeze(1)  # (T, 1, 2, 2)
+    present = torch.ones(observed, 1, 2, dtype=torch.bool)
+    heading = pos[-1] - pos[-2]  # (1, 2, 2)
+    return pos, present, heading / heading.norm(dim=-1, keepdim=True)
+
+
+@pytest.mark.parametrize("observed", [9, 5])  # the whole window, and a short history
+def test_constant_velocity_transform_maps_a_constant_history_to_zero(observed: int):
+    pos, present, rotation = constant_and_turning_histories(observed)
+    features, usable = history_features(pos, present, observed, rotation, 6)
+    assert usable.all()
+    transform = constant_velocity_transform(6, observed, extra=3)
+    assert transform.shape == (4 * 6 - 4, 4 * 6 - 3 + 3)
+    assert not transform[:, -3:].any()  # the attended features are dropped
+    extra = torch.randn(1, 2, 3, dtype=torch.float64)  # any attended features
+    mapped = torch.cat([features, extra], -1) @ transform.T  # (1, 2, F')
+    assert mapped[0, 0].abs().max() < 1e-12  # constant velocity
+    # the turning agent: its earlier velocities differ from the last, its accelerations not 0
+    assert mapped[0, 1].abs().max() > 0.05
+
+
+def test_the_zero_at_constant_velocity_form_is_kept_only_where_cross_validation_prefers_it():
+    # targets linear in the transformed features (a future decided by the history's velocity
+    # changes): the zero form is kept, bias exactly zero, nothing read from the attended
+    # features. Targets with a base rate (every agent drifts 0.5 m/step sideways): the affine
+    # map is kept.
+    gen = torch.Generator().manual_seed(11)
+    steps, extra, scenes, agents, num_pred = 3, 2, 40, 3, 4
+    own = 4 * steps - 3
+    features = torch.randn(scenes, agents, own + extra, generator=gen, dtype=torch.float64)
+    transform = constant_velocity_transform(steps, 10, extra)
+    mix = torch.randn(transform.shape[0], num_pred * 2, generator=gen, dtype=torch.float64)
+    decided = (features @ transform.T @ mix).view(scenes, agents, num_pred, 2)
+    noise = 0.01 * torch.randn(decided.shape, generator=gen, dtype=torch.float64)
+    drift = torch.zeros_like(decided)
+    drift[..., 1] = 0.5 * torch.arange(1, num_pred + 1, dtype=torch.float64).view(-1, 1).squeeze()
+    usable = torch.ones(scenes, agents, dtype=torch.bool)
+    roles = torch.zeros(scenes, agents, dtype=torch.long)
+    moments = features.unsqueeze(-1) * features.unsqueeze(-2)
+    subsets = [torch.ones(scenes, dtype=torch.bool)]
+    for offsets, zero_kept in ((decided + noise, True), (drift + noise, False)):
+        [(weight, bias, _)] = fit_highway_subsets(
+            features,
+            offsets.float(),
+            usable,
+            roles,
+            1,
+            num_pred,
+            subsets,
+            moments,
+            None,
+            transform,
+        )
+        assert (not bias.any()) == zero_kept
+        if zero_kept:
+            assert not weight[0, own:].any()
+            constant = torch.zeros(own + extra)
+            constant[2 * steps - 2] = 3.0  # the last velocity; the others' changes are zero
+            for slot in range(steps - 1):
+                constant[2 * slot] = 3.0
+            constant[own:] = torch.randn(extra, generator=gen)
+            change = torch.einsum("f,fkc->kc", constant, weight[0])
+            assert change.abs().max() < 1e-5
+    with pytest.raises(ValueError, match="need moments"):
+        fit_highway_subsets(
+            features, drift, usable, roles, 1, num_pred, subsets, None, None, transform
+        )

@@ -10,7 +10,7 @@ from sklearn.model_selection import GridSearchCV, GroupKFold
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 
-from predictor.moment_ridge import alpha_scores, fit_moment_ridge, group_statistics
+from predictor.moment_ridge import RidgeForm, alpha_scores, fit_moment_ridge, group_statistics
 
 ALPHAS = (1e-3, 1e-1, 1.0, 10.0, 1e3)
 
@@ -23,10 +23,11 @@ def noisy_linear(samples: int, features: int, outputs: int, seed: int):
     return x, y, groups
 
 
-def grid_search(x, y, groups, alphas, folds: int) -> GridSearchCV:
-    """scikit-learn's cross-validated standardised ridge, fitted (the reference)."""
+def grid_search(x, y, groups, alphas, folds: int, centred: bool = True) -> GridSearchCV:
+    """scikit-learn's cross-validated standardised ridge, fitted (the reference); uncentred:
+    no centring and no intercept."""
     return GridSearchCV(
-        make_pipeline(StandardScaler(), Ridge()),
+        make_pipeline(StandardScaler(with_mean=centred), Ridge(fit_intercept=centred)),
         {"ridge__alpha": list(alphas)},
         cv=GroupKFold(n_splits=folds),
         scoring="neg_mean_squared_error",
@@ -128,3 +129,45 @@ def test_one_group_cannot_be_cross_validated():
     x, y, _ = noisy_linear(10, 2, 1, seed=2)
     with pytest.raises(ValueError, match="two groups"):
         fit_moment_ridge(x, x[:, :, None] * x[:, None, :], y, np.zeros(10), ALPHAS, folds=5)
+
+
+def test_uncentred_form_is_scikit_learns_ridge_without_centring_or_intercept():
+    # the targets have an offset the uncentred form cannot fit: it must still be scikit-learn's
+    # fit of the same form (alpha, predictions), with a zero intercept
+    x, y, groups = noisy_linear(90, 5, 3, seed=7)
+    y = y + 4.0
+    moment = x[:, :, None] * x[:, None, :]
+    form = RidgeForm(centred=False)
+    coef, intercept, alpha = fit_moment_ridge(x, moment, y, groups, ALPHAS, folds=5, form=form)
+    search = grid_search(x, y, groups, ALPHAS, folds=5, centred=False)
+    assert alpha == search.best_params_["ridge__alpha"]
+    assert not intercept.any()
+    np.testing.assert_allclose(x @ coef, search.best_estimator_.predict(x), rtol=1e-8, atol=1e-8)
+    names, inverse = np.unique(groups, return_inverse=True)
+    stats = group_statistics(x, moment, y, np.ones(len(x)), inverse, len(names))
+    scores = alpha_scores(x, y, np.ones(len(x)), inverse, stats, ALPHAS, 5, form)
+    np.testing.assert_allclose(scores, -search.cv_results_["mean_test_score"], rtol=1e-9)
+
+
+@pytest.mark.parametrize("centred", [True, False])
+def test_min_std_scales_a_nearly_constant_feature_by_the_floor(centred: bool):
+    # feature 1 varies by ~1e-6 (rounding-like); with a floor of 1e-3 it is scaled by 1e-3, so
+    # the penalty on its coefficient is alpha (b * 1e-3)^2: scikit-learn's ridge on x / scale
+    gen = np.random.default_rng(8)
+    x = np.stack([gen.normal(size=60), 1e-6 * gen.normal(size=60)], axis=1)
+    y = x[:, :1] * 2.0 + gen.normal(size=(60, 1)) + 1e4 * x[:, 1:]
+    groups = np.arange(60) % 6
+    alpha = 10.0
+    form = RidgeForm(centred=centred, min_std=1e-3)
+    moment = x[:, :, None] * x[:, None, :]
+    coef, intercept, _ = fit_moment_ridge(x, moment, y, groups, (alpha,), folds=3, form=form)
+    scale = np.maximum(x.std(0), 1e-3)
+    assert scale[1] == 1e-3
+    ridge = Ridge(alpha=alpha, fit_intercept=centred).fit(x / scale, y)
+    np.testing.assert_allclose(coef[:, 0], ridge.coef_.ravel() / scale, rtol=1e-6)
+    np.testing.assert_allclose(intercept, np.atleast_1d(ridge.intercept_), atol=1e-9)
+    # unfloored, the same feature is standardised to unit variance and read far more
+    plain, _, _ = fit_moment_ridge(
+        x, moment, y, groups, (alpha,), folds=3, form=RidgeForm(centred=centred)
+    )
+    assert abs(plain[1, 0]) > 10 * abs(coef[1, 0])
