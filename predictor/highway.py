@@ -24,6 +24,12 @@ keeps `CROSS_FIT_FOLDS` maps, each fitted without one fold of the training scene
 training scene's rollout uses the map that never saw it (cross-fitting). Prediction uses the
 map fitted on all training scenes.
 
+`ModelConfig.highway_zero_at_cv` fits each map a second time in a form that is zero at constant
+velocity (the own history's velocity changes, no intercept, no attended reading) and keeps the
+form with the lower cross-validated error: a map fitted on cases that differ in their base rate
+(Halting Car's `stop` and `go`) otherwise predicts part of one case's manoeuvre for an agent that
+drives on at constant speed in the other.
+
 A linear map is trusted only where it was fitted: the highway's velocity changes are clamped,
 per map, predicted step and axis, to the range of its training targets (zero included, see
 `change_bounds`). Unclamped, a map fitted on few scenes extrapolated without bound: on Halting
@@ -202,9 +208,11 @@ def fit_highway_subsets(
                 fits = _moment_fits(x, second, y, mass, groups, chosen, affine)
                 if zero_at_cv is not None:
                     transform = zero_at_cv.double().numpy()  # (F', F)
+                    read = transform.any(0)  # the features it reads: the moments' cost is F^2
+                    part, inner = transform[:, read], second[:, read][:, :, read]
                     zero = _moment_fits(
-                        x @ transform.T,
-                        transform @ second @ transform.T,
+                        x[:, read] @ part.T,
+                        part @ inner @ part.T,
                         y,
                         mass,
                         groups,
