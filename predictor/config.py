@@ -44,6 +44,18 @@ AGENT_FRAME_ONLY = (
     "acceleration_input",
     "rollout_prior",
 )
+# ModelConfig switches of the highway (predictor.highway), all off at their defaults: a variant
+# without the anchored rollout the highway sits in resets them (predictor.presets.make_configs)
+HIGHWAY_SWITCHES = (
+    "highway_steps",
+    "highway_attended",
+    "attended_refit",
+    "attended_fit",
+    "highway_relation",
+    "highway_head_groups",
+    "highway_zero_at_cv",
+    "highway_min_std",
+)
 
 
 MAX_SEED = 2**63 - 1  # seeds are int64 (torch.manual_seed, the checkpoint's config)

@@ -3,7 +3,8 @@ changes, and the closed-form fits (at normalisation, and `refit_attended` every 
 
 `HighwayMaps` is a mixin of `SmoothAttentionPredictor` (predictor.model), which owns the
 buffers it reads (`highway_weight`, `attended_weight`, ... registered in its constructor) and
-the passes it calls (`_prepare`, `_block`); the arithmetic itself is in predictor.highway.
+the passes it calls (`_prepare`, `_block`); the arithmetic itself is in predictor.highway
+(features, readings) and predictor.highway_fit (the fits).
 """
 
 from __future__ import annotations
@@ -19,11 +20,9 @@ from predictor.highway import (
     CROSS_FIT_FOLDS,
     agent_maps,
     attended_changes,
-    change_bounds,
     clamp_changes,
     constant_velocity_transform,
     edge_relations,
-    fit_cross_fitted,
     fold_of,
     future_offsets,
     history_features,
@@ -32,6 +31,7 @@ from predictor.highway import (
     uniform_attention,
     velocity_changes,
 )
+from predictor.highway_fit import change_bounds, fit_cross_fitted
 from predictor.outputs import edge_index
 
 if TYPE_CHECKING:  # annotations only: the model module imports this one

@@ -139,7 +139,7 @@ class SmoothAttentionPredictor(InputStatistics, HighwayMaps, nn.Module):
             folds = CROSS_FIT_FOLDS  # the maps that training scenes use (cross-fitting)
             self.register_buffer("highway_fold_weight", torch.zeros(folds, *shape, 2))
             self.register_buffer("highway_fold_bias", torch.zeros(folds, shape[0], shape[2], 2))
-            # each map's output range (predictor.highway.change_bounds): zero until fitted
+            # each map's output range (predictor.highway_fit.change_bounds): zero until fitted
             self.register_buffer("highway_low", torch.zeros(shape[0], shape[2], 2))
             self.register_buffer("highway_high", torch.zeros(shape[0], shape[2], 2))
         # the attended highway: statistics fitted with the normalisation; the map learnt by

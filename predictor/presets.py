@@ -4,9 +4,17 @@ The fields themselves, their defaults and their rules are `predictor.config`'s."
 
 from __future__ import annotations
 
+from dataclasses import fields
 from typing import Any
 
-from predictor.config import ROLES_FROM_DATA, VARIANTS, ModelConfig, TrainConfig, build_config
+from predictor.config import (
+    HIGHWAY_SWITCHES,
+    ROLES_FROM_DATA,
+    VARIANTS,
+    ModelConfig,
+    TrainConfig,
+    build_config,
+)
 
 # Named settings: (ModelConfig values, TrainConfig values) over the dataclass defaults.
 # "paper": the literal paper model and optimiser (the dataclass defaults).
@@ -85,16 +93,8 @@ def make_configs(
         if (model_overrides or {}).get("rollout_prior") == "anchored":
             raise ValueError(f"variant {variant!r} has no rollout loss to train rollout_prior")
         # the highway sits in the anchored rollout's prior, so it goes with it
-        no_highway = {
-            "highway_steps": 0,
-            "highway_attended": False,
-            "attended_refit": False,
-            "attended_fit": "mean",
-            "highway_relation": False,
-            "highway_head_groups": False,
-            "highway_zero_at_cv": False,
-            "highway_min_std": 0.0,
-        }
+        defaults = {item.name: item.default for item in fields(ModelConfig)}
+        no_highway = {name: defaults[name] for name in HIGHWAY_SWITCHES}
         preset_model = {**preset_model, "rollout_prior": "previous", **no_highway}
         model_overrides = {**(model_overrides or {}), **no_highway}
     model_overrides = {**preset_model, **(model_overrides or {})}

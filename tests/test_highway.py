@@ -10,25 +10,27 @@ import torch
 from torch import Tensor
 
 from predictor.agent_frame import agent_frames
-from predictor.config import ModelConfig
+from predictor.config import HIGHWAY_SWITCHES, ModelConfig
 from predictor.highway import (
     CROSS_FIT_FOLDS,
-    HIGHWAY_ALPHAS,
     attended_changes,
-    change_bounds,
     constant_velocity_transform,
-    fit_cross_fitted,
-    fit_highway,
-    fit_highway_subsets,
     fold_of,
     future_offsets,
     history_features,
     neighbour_features,
     velocity_changes,
 )
+from predictor.highway_fit import (
+    HIGHWAY_ALPHAS,
+    change_bounds,
+    fit_cross_fitted,
+    fit_highway,
+    fit_highway_subsets,
+)
 from predictor.model import SmoothAttentionPredictor
 from predictor.outputs import edge_index
-from predictor.presets import make_configs
+from predictor.presets import PRESETS, make_configs
 
 torch.set_num_threads(1)
 
@@ -245,6 +247,10 @@ def test_highway_needs_the_anchored_rollout_and_s_attn_drops_it():
         ModelConfig(frame="agent", highway_steps=4)
     model, _ = make_configs("s_attn", {"highway_steps": 12}, preset="agent")
     assert model.highway_steps == 0 and model.rollout_prior == "previous"
+    for preset in PRESETS:  # every highway switch back at its default, whatever the preset
+        model, _ = make_configs("s_attn", preset=preset)
+        for name in HIGHWAY_SWITCHES:
+            assert getattr(model, name) == getattr(ModelConfig(), name), (preset, name)
 
 
 def test_training_scenes_roll_out_with_the_map_fitted_without_their_fold():
