@@ -1,6 +1,7 @@
 """The reproduction's protocol: the paper's settings, setting groups, variants and seed counts.
 
-What a reproduction runs is a `Protocol` (settings, variants, seeds, epochs, preset); the
+What a reproduction runs is a `Protocol` (settings, variants, seeds, epochs, preset, and the
+presets compared with it); the
 settings are the paper's Sec. V experiments. pipeline.reproduction runs a protocol, and
 tools/reproduce.py builds one from its arguments (`pick` reads the comma lists).
 """
@@ -101,6 +102,10 @@ class Protocol:
     data_seed: int = DATA_SEED
     quick: bool = False  # cap every setting at QUICK_MAX_MAJOR major trajectories
     preset: str = "paper"  # predictor.presets.PRESETS: the model and training configuration
+    # other presets whose runs of `compare_variants` the report shows beside the preset's own
+    # (same settings, seeds and epochs), e.g. the paper's literal version beside a default
+    compare_presets: tuple[str, ...] = ()
+    compare_variants: tuple[str, ...] = ("ours",)  # trained variants run under compare_presets
 
     def counts(self, setting: Setting) -> tuple[int, int]:
         """(num_major, num_minor) generated for a setting; a quick protocol caps the major count."""

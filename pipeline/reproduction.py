@@ -70,6 +70,7 @@ from pipeline.run_plan import (
     run_configs,
     setting_jobs,
     unique,
+    unique_runs,
 )
 
 INVOCATION_LOG = "invocations.jsonl"  # in the cache: date, command, wall seconds, jobs run
@@ -274,7 +275,8 @@ def execute(
         data_status = make_datasets(runner, items)
         # Seed-major order: an interrupted reproduction leaves whole seeds (every setting and
         # variant), so a rerun with a smaller seed count reports from the cache alone.
-        todo = sorted((job for job in all_jobs if read_eval(job) is None), key=lambda j: j.seed)
+        missing = [job for job in unique_runs(all_jobs) if read_eval(job) is None]
+        todo = sorted(missing, key=lambda j: j.seed)
         outcomes = run_jobs(runner, todo, deadline)
     from_store = sum(
         1 for job in all_jobs if job not in todo and result_dir(job) == Path(job.store_dir)

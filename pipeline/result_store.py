@@ -67,13 +67,16 @@ def keep_result(job: Job) -> bool:
 
 
 def collect(protocol: Protocol, out_dir: Path, store: Path | None = None) -> tuple[RunRecord, ...]:
-    """One record per (setting, variant, seed) whose eval.json exists (cache or store)."""
+    """One record per (setting, variant, seed) whose eval.json exists (cache or store); runs
+    under a compared preset are named by `Job.record_variant`."""
     records = []
     for setting in protocol.settings:
         for job in setting_jobs(protocol, setting, out_dir, store):
             result = read_eval(job)
             if result is not None:
-                records.append(RunRecord.from_eval(setting.name, job.variant, job.seed, result))
+                records.append(
+                    RunRecord.from_eval(setting.name, job.record_variant, job.seed, result)
+                )
     return tuple(records)
 
 
@@ -86,7 +89,7 @@ def scene_files(
         jobs = setting_jobs(protocol, setting, out_dir, store)
         files = {}
         for job in jobs:
-            if job.variant in FIGURE_VARIANTS and job.seed == 0 and read_eval(job) is not None:
+            if job.save_scenes and read_eval(job) is not None:
                 files[job.variant] = str(result_dir(job) / "scenes.npz")
         if set(files) == set(FIGURE_VARIANTS):
             found[setting.name] = files

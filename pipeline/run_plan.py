@@ -16,7 +16,7 @@ from pathlib import Path
 
 from pipeline.generation import GenerateConfig
 from pipeline.protocol import Protocol, Setting
-from pipeline.report.records import BASELINES
+from pipeline.report.records import BASELINES, compared_variant
 
 FIGURE_VARIANTS = ("ours", "s_attn")  # their first seed keeps predictions of the figure scenes
 RUN_THREADS = 1  # torch threads of a training/evaluation job: a Ray task asks for this many CPUs
@@ -65,6 +65,12 @@ class Job:
     save_scenes: bool  # keep predictions of the figure scenes (scenes.npz)
     store_dir: str = ""  # where the results store keeps its eval.json (and scenes.npz); "" none
     preset: str = "paper"  # predictor.presets.PRESETS
+    compared: bool = False  # run under one of Protocol.compare_presets, not Protocol.preset
+
+    @property
+    def record_variant(self) -> str:
+        """The variant's name in the records ("ours@agent_zero_cv" under a compared preset)."""
+        return compared_variant(self.variant, self.preset) if self.compared else self.variant
 
 
 def digest(value: object) -> str:
@@ -118,16 +124,25 @@ def run_dir(
 def setting_jobs(
     protocol: Protocol, setting: Setting, out_dir: Path, store: Path | None = None
 ) -> list[Job]:
-    """The jobs of one setting, in variant then seed order; with a results `store`, each job
-    keeps its results under the same relative path there as under out_dir/runs."""
+    """The jobs of one setting, in variant then seed order, then those of each compared preset
+    (`Protocol.compare_presets`: its `compare_variants`, no figure scenes); with a results
+    `store`, each job keeps its results under the same relative path there as under
+    out_dir/runs. A compared preset whose configuration of a variant equals the protocol's
+    gives a job with the same run directory (`unique_runs` runs it once)."""
     spec = data_spec(protocol, setting)
     path = str(data_path(out_dir, spec))
+    planned = [(protocol.preset, variant, False) for variant in protocol.variants]
+    planned += [
+        (preset, variant, True)
+        for preset in protocol.compare_presets
+        for variant in protocol.compare_variants
+    ]
     jobs = []
-    for variant in protocol.variants:
+    for preset, variant, compared in planned:
         for seed in [0] if variant in BASELINES else range(protocol.seeds):
-            directory = run_dir(out_dir, spec, variant, seed, protocol.epochs, protocol.preset)
+            directory = run_dir(out_dir, spec, variant, seed, protocol.epochs, preset)
             kept = "" if store is None else str(store / directory.relative_to(out_dir / "runs"))
-            save_scenes = variant in FIGURE_VARIANTS and seed == 0
+            save_scenes = variant in FIGURE_VARIANTS and seed == 0 and not compared
             jobs.append(
                 Job(
                     path,
@@ -137,7 +152,8 @@ def setting_jobs(
                     str(directory),
                     save_scenes,
                     kept,
-                    protocol.preset,
+                    preset,
+                    compared,
                 )
             )
     return jobs
@@ -146,3 +162,12 @@ def setting_jobs(
 def unique(items: list) -> list:
     """Items in first-seen order without repeats (settings may share data or runs)."""
     return list(dict.fromkeys(items))
+
+
+def unique_runs(jobs: list[Job]) -> list[Job]:
+    """The first job of each run directory (a variant whose configuration a compared preset
+    leaves unchanged is one run, trained once), the main preset's before a compared one's."""
+    first: dict[str, Job] = {}
+    for job in sorted(jobs, key=lambda j: j.compared):
+        first.setdefault(job.run_dir, job)
+    return [job for job in jobs if first[job.run_dir] is job]

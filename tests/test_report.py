@@ -15,7 +15,8 @@ import pytest
 from conftest import write_predictions_npz
 from scipy import stats
 
-from pipeline.report import context, figures, markdown, statistics
+from pipeline.protocol import SETTING_BY_NAME, Protocol
+from pipeline.report import context, figures, markdown, records, statistics
 from pipeline.report.records import (
     MEASURES,
     CaseNames,
@@ -259,6 +260,57 @@ def test_bar_table_against_the_better_oracle_ridge_and_constant_velocity():
     assert lines[3] == minor + " 0.300 | 0.900 | met |"
     assert markdown.bar_verdict(1.0, None) == "n/a" and markdown.bar_verdict(1.0, 1.0) == "not met"
     assert markdown.bar_table(statistics.analyse(runs), ["dm_r0.3"]).startswith("_Needs Ours")
+
+
+def compared_runs() -> list[RunRecord]:
+    """hand_runs plus Ours under a compared preset (major ADE 0.5 / 1.5, minor 1.0 / 5.0)."""
+    rows = [(0, 0.5, 1.0), (1, 1.5, 5.0)]
+    return hand_runs() + [
+        RunRecord.from_eval(
+            "hc_go",
+            "ours@agent_zero_cv",
+            seed,
+            fake_eval({"major": a, "minor": m}, {"major": 2 * a, "minor": 2 * m}),
+        )
+        for seed, a, m in rows
+    ]
+
+
+def test_a_compared_preset_is_tested_against_the_same_variant():
+    results = statistics.analyse(compared_runs())
+    comparison = results.comparison("hc_go", "ours", "ours@agent_zero_cv")
+    cell = comparison[MAJOR_ADE]
+    assert cell.mean_ours == 1.0 and cell.mean_other == 2.0
+    assert cell.test.p == pytest.approx(stats.ttest_ind([0.5, 1.5], [1, 3], equal_var=False).pvalue)
+    assert results.comparison("hc_go", "s_attn", "ours@agent_zero_cv") is None
+    assert records.label("ours@agent_zero_cv") == "Ours [agent_zero_cv]"
+    assert records.split_variant("ours") == ("ours", None)
+
+
+def test_presets_table_and_bar_rows_per_preset():
+    setting = SETTING_BY_NAME["hc_go"]
+    protocol = Protocol(
+        (setting,), ("ours",), 2, 5, preset="agent", compare_presets=("agent_zero_cv",)
+    )
+    results = statistics.analyse(compared_runs())
+    lines = markdown.presets_table(results, "hc_go", protocol).splitlines()
+    assert len(lines) == 4
+    assert lines[2].startswith("| Ours [agent] | 2.000 ± 1.414 | 3.000 ± 1.414 | 0.200 ± 0.141 |")
+    p_major = stats.ttest_ind([0.5, 1.5], [1, 3], equal_var=False).pvalue
+    p_minor = stats.ttest_ind([1, 5], [2, 4], equal_var=False).pvalue
+    assert lines[3].startswith("| Ours [agent_zero_cv] | 1.000 ± 0.707 | 3.000 ± 2.828 |")
+    assert lines[3].endswith(f"| 2 | {p_major:.2g}, {p_minor:.2g} |")
+    assert markdown.presets_table(results, "dm_r0.3", protocol) == "_Not run._"
+    models = markdown.compared_models(protocol)
+    assert models == ("ours", "ours@agent_zero_cv")
+    runs = compared_runs() + [
+        RunRecord.from_eval("hc_go", "const_vel", 0, fake_eval(*ADE_FDE)),
+    ]
+    bar = markdown.bar_table(statistics.analyse(runs), ["hc_go"], models).splitlines()
+    assert bar[0].startswith("| setting | model | case |") and len(bar) == 6
+    assert bar[4].startswith("| `hc_go` | Ours [agent_zero_cv] | major | 1.000 | n/a |")
+    assert markdown.compared_line(protocol) == ", compared with `agent_zero_cv` (Ours)"
+    assert markdown.compared_line(Protocol((), ("ours",), 1, 1)) == ""
 
 
 def test_pvalue_table_gives_p_and_difference():

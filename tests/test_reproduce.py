@@ -240,6 +240,10 @@ def test_existing_report_needs_overwrite(quick):
         (["--budget-minutes", "nan"], "--budget-minutes must not be negative"),
         (["--store", str(REPO_ROOT / "README.md")], "exists and is not a directory"),
         (["--store", "s", "--no-store"], "not allowed with argument"),
+        (["--compare-presets", "agent,bogus"], "unknown compared preset 'bogus'"),
+        (["--compare-presets", "paper"], "names 'paper', the report's own --preset"),
+        (["--compare-presets", "agent,agent"], "names a preset twice"),
+        (["--compare-presets", "agent", "--compare-variants", "ridge"], "compared variant 'ridge'"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, args, message):

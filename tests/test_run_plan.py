@@ -5,13 +5,14 @@ and the pool's deadline. The runner itself is tested end to end in test_reproduc
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 import time
 from pathlib import Path
 
 import numpy as np
 
-from pipeline import reproduction, run_plan
+from pipeline import reproduction, result_store, run_plan
 from pipeline.protocol import ALL_VARIANTS, GROUPS, SETTING_BY_NAME, Protocol, pick
 
 
@@ -69,6 +70,73 @@ def test_cache_keys_change_with_the_configs(tmp_path):
     model_cfg, train_cfg = run_plan.run_configs("ours", 0, 5, "agent")
     assert model_cfg.frame == "agent" and train_cfg.epochs == 5 and train_cfg.threads == 1
     assert run_plan.digest({"a": 1, "b": 2}) == run_plan.digest({"b": 2, "a": 1})
+
+
+def test_compared_presets_add_their_variants_jobs_named_apart(tmp_path):
+    """--compare-presets: each compared preset's runs of the compared variants are planned
+    after the protocol's own, under their own cache keys, with no figure scenes, and named
+    "<variant>@<preset>" in the records; a variant the compared preset leaves unchanged
+    (S-Attn has no highway under either agent preset) shares the run and is run once."""
+    setting = SETTING_BY_NAME["hc_go"]
+    protocol = Protocol(
+        (setting,),
+        ("ours", "s_attn", "const_vel"),
+        2,
+        5,
+        preset="agent",
+        compare_presets=("agent_zero_cv",),
+        compare_variants=("ours", "s_attn"),
+    )
+    jobs = run_plan.setting_jobs(protocol, setting, tmp_path)
+    main, compared = jobs[:5], jobs[5:]
+    assert [(j.variant, j.seed, j.compared) for j in main] == [
+        ("ours", 0, False),
+        ("ours", 1, False),
+        ("s_attn", 0, False),
+        ("s_attn", 1, False),
+        ("const_vel", 0, False),
+    ]
+    assert [(j.record_variant, j.seed, j.preset) for j in compared] == [
+        ("ours@agent_zero_cv", 0, "agent_zero_cv"),
+        ("ours@agent_zero_cv", 1, "agent_zero_cv"),
+        ("s_attn@agent_zero_cv", 0, "agent_zero_cv"),
+        ("s_attn@agent_zero_cv", 1, "agent_zero_cv"),
+    ]
+    assert main[0].record_variant == "ours" and not any(j.save_scenes for j in compared)
+    assert compared[0].run_dir != main[0].run_dir  # the highway's refit differs: another key
+    assert compared[2].run_dir == main[2].run_dir  # S-Attn's configuration is the same
+    once = run_plan.unique_runs(jobs)
+    assert len(once) == 7 and compared[2] not in once and main[2] in once
+    assert [j.compared for j in run_plan.unique_runs(list(reversed(jobs)))].count(True) == 2
+
+
+def test_collect_names_the_compared_presets_runs_apart(tmp_path):
+    """Runs found in the results store are read into records named by Job.record_variant."""
+    setting = SETTING_BY_NAME["hc_go"]
+    protocol = Protocol(
+        (setting,), ("ours",), 1, 5, preset="agent", compare_presets=("agent_zero_cv",)
+    )
+    scores = {"cases": {"go": {"ade": 1.0}, "stop": {"ade": 2.0}}, "overall": {"ade": 1.5}}
+    for k, job in enumerate(run_plan.setting_jobs(protocol, setting, tmp_path, tmp_path / "s")):
+        result = {
+            "variant": job.variant,
+            "seed": job.seed,
+            "major_case": "go",
+            "case_names": ["stop", "go"],
+            "main_agents": scores,
+            "all_agents": scores,
+            "attention_accuracy": {"cases": {"go": {}, "stop": {}}, "overall": {}},
+            "train_seconds": float(k),
+        }
+        Path(job.store_dir).mkdir(parents=True)
+        (Path(job.store_dir) / "eval.json").write_text(json.dumps(result))
+        if job.save_scenes:
+            (Path(job.store_dir) / "scenes.npz").write_bytes(b"")
+    found = result_store.collect(protocol, tmp_path, tmp_path / "s")
+    assert [(r.variant, r.train_seconds) for r in found] == [
+        ("ours", 0.0),
+        ("ours@agent_zero_cv", 1.0),
+    ]
 
 
 def test_figure_scenes_pick_the_first_interacting_scene_per_case():

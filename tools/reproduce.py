@@ -6,6 +6,7 @@ Examples:
     python tools/reproduce.py --quick              # tiny smoke version of everything (~1-2 min)
     python tools/reproduce.py --settings main --seeds 5 --report docs/RESULTS.md --overwrite
     python tools/reproduce.py --settings main --backend ray --address HEAD_IP:6379
+    python tools/reproduce.py --preset agent --compare-presets agent_zero_cv,paper --seeds 5
 
 The report goes to OUT_DIR/RESULTS.md (default outputs/reproduce/RESULTS.md), with
 results.json and the figures (results/) beside it; `--report docs/RESULTS.md --overwrite`
@@ -30,6 +31,13 @@ against) are evaluated once per setting (deterministic).
 | `hc_go`     | halting_car  | go         | 15 + 50 (ratio 0.3)         |
 
 Groups for `--settings`: `main` (dm_r0.3, hc_stop), `ratio`, `size`, `halting`, `all`.
+
+Presets side by side (`--compare-presets P[,Q]`, `--compare-variants`, default ours): the
+variants named are also trained under each preset named, on the same datasets with the same
+seeds and epochs, and the report gives them a section of their own (per setting: ADE of the
+main cars and of all cars, attention weight, Welch's p against `--preset`) and rows in the
+bar table. A variant whose configuration a compared preset leaves unchanged (S-Attn has no
+highway, so `agent` and `agent_zero_cv` train the same S-Attn) is one run, trained once.
 Every setting has 50 test trajectories per case and a 20 % validation split.
 
 Results store (`--store`, default results/, none with --quick): each finished run's eval.json
@@ -88,6 +96,7 @@ from pipeline.protocol import (
     QUICK_NUM_TEST,
     QUICK_SEEDS,
     SETTING_BY_NAME,
+    TRAINED_VARIANTS,
     Protocol,
     ReproductionError,
     pick,
@@ -129,6 +138,18 @@ def parse_args(argv: list[str] | None = None):
         choices=sorted(PRESETS),
         help="model and training configuration of the trained variants (predictor/config.py "
         f"PRESETS; default {DEFAULT_PRESET}; paper = the paper's literal version)",
+    )
+    parser.add_argument(
+        "--compare-presets",
+        default="",
+        help="comma-separated presets whose runs of --compare-variants the report shows "
+        "beside --preset's (same settings, seeds and epochs; default none)",
+    )
+    parser.add_argument(
+        "--compare-variants",
+        default="ours",
+        help=f"trained variants run under --compare-presets: {', '.join(TRAINED_VARIANTS)} "
+        "(default ours)",
     )
     parser.add_argument(
         "--jobs", type=int, default=2, help="parallel processes, one torch thread each (default 2)"
@@ -198,8 +219,17 @@ def protocol_from_args(args) -> Protocol:
     try:
         names = pick(args.settings, tuple(SETTING_BY_NAME), GROUPS, "setting")
         variants = pick(args.variants, ALL_VARIANTS, {"all": ALL_VARIANTS}, "variant")
+        compared = pick(args.compare_variants, TRAINED_VARIANTS, {}, "compared variant")
+        presets = tuple(p.strip() for p in args.compare_presets.split(",") if p.strip())
     except ReproductionError as err:
         fail(str(err))
+    for preset in presets:
+        if preset not in PRESETS:
+            fail(f"unknown compared preset {preset!r}; choose from {', '.join(sorted(PRESETS))}")
+        if preset == args.preset:
+            fail(f"--compare-presets names {preset!r}, the report's own --preset")
+    if len(set(presets)) < len(presets):
+        fail("--compare-presets names a preset twice")
     seeds = args.seeds if args.seeds is not None else (QUICK_SEEDS if args.quick else PAPER_SEEDS)
     epochs = (
         args.epochs if args.epochs is not None else (QUICK_EPOCHS if args.quick else PAPER_EPOCHS)
@@ -216,6 +246,8 @@ def protocol_from_args(args) -> Protocol:
         DATA_SEED,
         args.quick,
         args.preset,
+        presets,
+        compared,
     )
 
 

@@ -14,7 +14,6 @@ from pipeline.report.records import (
     BASELINES,
     CASES,
     HEADLINE,
-    LABELS,
     METRICS,
     ORACLE_BASELINES,
     CaseNames,
@@ -23,10 +22,13 @@ from pipeline.report.records import (
     Measure,
     Results,
     Summary,
+    compared_variant,
+    label,
 )
 from pipeline.report.statistics import ALPHA, ALPHA_S_ATTN, STATISTICS, size_margins
 
 if TYPE_CHECKING:
+    from pipeline.protocol import Protocol
     from pipeline.report.document import Report
 
 FIXED_ATTENTION = ("average", "correct", *BASELINES)  # nothing learned to score
@@ -91,7 +93,7 @@ def results_table(
         summary = results.summary(setting, variant)
         if summary is None:
             continue
-        row = [LABELS[variant]] + [
+        row = [label(variant)] + [
             fmt(summary[Measure(m, c, group)]) for c in CASES for m in METRICS
         ]
         if group == HEADLINE:
@@ -111,10 +113,10 @@ def pvalue_table(results: Results, setting: str) -> str:
         comparison = results.comparison(setting, other)
         if comparison is None:
             continue
-        row = [f"Ours vs {LABELS[other]}"]
+        row = [f"Ours vs {label(other)}"]
         for measure in HEADLINE_MEASURES:
             cell = comparison[measure]
-            p = "n/a" if cell.test.p is None else f"{cell.test.p:.2g}"
+            p = p_value(cell.test.p)
             if cell.mean_ours is not None and cell.mean_other is not None:
                 p += f" (Δ {cell.mean_ours - cell.mean_other:+.3f} m)"
             row.append(p)
@@ -135,12 +137,13 @@ def bar_verdict(model: float | None, baseline: float | None) -> str:
     return "met" if model < baseline else "not met"
 
 
-def bar_table(results: Results, settings: Sequence[str]) -> str:
-    """Per setting and case: Ours against the better oracle ridge (main cars) and against
-    constant velocity (all agents), as `BAR_RULES` says."""
+def bar_table(results: Results, settings: Sequence[str], models: Sequence[str] = ("ours",)) -> str:
+    """Per setting and case: Ours (and each of `models`, e.g. Ours under a compared preset,
+    in a column of its own) against the better oracle ridge (main cars) and against constant
+    velocity (all agents), as `BAR_RULES` says."""
     rows = []
-    for setting in settings:
-        ours = results.summary(setting, "ours")
+    for setting, model in ((s, m) for s in settings for m in models):
+        ours = results.summary(setting, model)
         if ours is None:
             continue
         const_vel = results.summary(setting, "const_vel")
@@ -157,11 +160,12 @@ def bar_table(results: Results, settings: Sequence[str]) -> str:
             all_agents = ours[everyone].mean
             constant = None if const_vel is None else const_vel[everyone].mean
             rows.append(
-                [
-                    f"`{setting}`",
+                [f"`{setting}`"]
+                + ([label(model)] if len(models) > 1 else [])
+                + [
                     case,
                     "n/a" if main is None else f"{main:.3f}",
-                    "n/a" if best is None else f"{best:.3f} ({LABELS[best_name]})",
+                    "n/a" if best is None else f"{best:.3f} ({label(best_name)})",
                     bar_verdict(main, best),
                     "n/a" if all_agents is None else f"{all_agents:.3f}",
                     "n/a" if constant is None else f"{constant:.3f}",
@@ -170,9 +174,70 @@ def bar_table(results: Results, settings: Sequence[str]) -> str:
             )
     if not rows:
         return "_Needs Ours and the baselines of at least one setting._"
-    header = ["setting", "case", "Ours main ADE", "best oracle ridge main ADE", "main cars"]
-    header += ["Ours all-agent ADE", "Const-Vel all-agent ADE", "all agents"]
+    header = ["setting"] + (["model"] if len(models) > 1 else []) + ["case", "Ours main ADE"]
+    header += ["best oracle ridge main ADE", "main cars", "Ours all-agent ADE"]
+    header += ["Const-Vel all-agent ADE", "all agents"]
     return table(header, rows)
+
+
+def compared_models(protocol: Protocol) -> tuple[str, ...]:
+    """The record names of Ours under the protocol's preset and each compared preset."""
+    if "ours" not in protocol.compare_variants:
+        return ("ours",)
+    return ("ours", *(compared_variant("ours", p) for p in protocol.compare_presets))
+
+
+def presets_table(results: Results, setting: str, protocol: Protocol) -> str:
+    """One setting's compared variants under the protocol's preset and each compared preset:
+    main-car and all-agent ADE and the attention weight per case, and Welch's p of each
+    compared preset's main-car ADE against the protocol's preset."""
+    header = ["variant [preset]"] + [f"main ADE {c}" for c in CASES]
+    header += [f"all-agent ADE {c}" for c in CASES]
+    header += [f"attn. weight {c}" for c in CASES] + ["runs", "p main ADE (major, minor)"]
+    rows = []
+    for variant in protocol.compare_variants:
+        names = [variant, *(compared_variant(variant, p) for p in protocol.compare_presets)]
+        for name in names:
+            summary = results.summary(setting, name)
+            if summary is None:
+                continue
+            shown = label(name) if name != variant else f"{label(name)} [{protocol.preset}]"
+            row = [shown] + [fmt(summary[Measure("ade", c)]) for c in CASES]
+            row += [fmt(summary[Measure("ade", c, "all_agents")]) for c in CASES]
+            row += [
+                "n/a" if variant in FIXED_ATTENTION else fmt(summary[Measure(ATTENTION[1], c)])
+                for c in CASES
+            ]
+            comparison = results.comparison(setting, variant, name)
+            tests = (
+                ""
+                if comparison is None
+                else ", ".join(p_value(comparison[Measure("ade", c)].test.p) for c in CASES)
+            )
+            rows.append(row + [str(summary.runs), tests])
+    return table(header, rows) if rows else "_Not run._"
+
+
+def p_value(p: float | None) -> str:
+    """A p-value to two significant digits ("n/a" where undefined)."""
+    return "n/a" if p is None else f"{p:.2g}"
+
+
+def presets_section(report: Report) -> str:
+    """The variants of `Protocol.compare_variants` under each preset, per setting."""
+    protocol = report.input.protocol
+    compared = ", ".join(f"`{p}`" for p in protocol.compare_presets)
+    variants = ", ".join(label(v) for v in protocol.compare_variants)
+    parts = [
+        f"{variants} under `{protocol.preset}` (the report's preset) and {compared}, same "
+        "datasets, seeds and epochs; p: Welch's t-test of the main-car ADE against "
+        f"`{protocol.preset}`."
+    ]
+    for setting in protocol.settings:
+        if report.results.has_setting(setting.name):
+            table_text = presets_table(report.results, setting.name, protocol)
+            parts += [f"\n`{setting.name}`:\n", table_text]
+    return "\n".join(parts)
 
 
 def claims_table(rows: Sequence[ClaimRow]) -> str:
@@ -263,6 +328,14 @@ def size_section(report: Report) -> str:
     return text
 
 
+def compared_line(protocol: Protocol) -> str:
+    """ ", compared with ..." naming the compared presets and their variants, or ""."""
+    if not protocol.compare_presets:
+        return ""
+    presets = ", ".join(f"`{p}`" for p in protocol.compare_presets)
+    return f", compared with {presets} ({', '.join(label(v) for v in protocol.compare_variants)})"
+
+
 def how_produced(report: Report) -> str:
     """The bullets saying what ran, where, and how long it took."""
     source, machine = report.input, report.machine
@@ -282,7 +355,7 @@ def how_produced(report: Report) -> str:
             f"{machine.torch}, {machine.torch_threads_per_job} torch thread per job, "
             f"{machine.jobs} parallel jobs; Python {machine.python}",
             f"- Configuration preset: `{getattr(protocol, 'preset', 'paper')}` "
-            "(predictor/presets.py `PRESETS`); "
+            "(predictor/presets.py `PRESETS`)" + compared_line(protocol) + "; "
             f"epochs: {protocol.epochs}; "
             f"seeds per trained variant: {protocol.seeds} ({seeds}); "
             f"baselines ({', '.join(f'`{b}`' for b in BASELINES)}) once per setting "
@@ -346,8 +419,10 @@ def render(report: Report, notes: str | None, notes_name: str) -> str:
         "\n## The bar: simple baselines\n",
         BAR_RULES,
         "",
-        bar_table(report.results, settings),
+        bar_table(report.results, settings, compared_models(protocol)),
     ]
+    if protocol.compare_presets:
+        parts += ["\n## Presets side by side\n", presets_section(report)]
     parts += ["\n## Training-set size study (Double Merge, Fig. 4)\n", size_section(report)]
     parts += ["\n## Paper claims\n", CLAIM_RULES, "", claims_table(report.claims)]
     parts.append("\n## Trajectories and attention (Fig. 6)\n")

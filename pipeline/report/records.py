@@ -39,6 +39,27 @@ LABELS = {  # how tables and figures name the variants
     "ridge_labelled_relation": "Ridge+label per relation (oracle)",
 }
 
+PRESET_MARK = "@"  # "ours@agent_zero_cv": a variant trained under a compared preset
+
+
+def compared_variant(variant: str, preset: str) -> str:
+    """The name a variant's runs under a compared preset (not the protocol's) carry in the
+    records, so they are summarised and tested apart from the same variant's main runs."""
+    return f"{variant}{PRESET_MARK}{preset}"
+
+
+def split_variant(name: str) -> tuple[str, str | None]:
+    """(variant, compared preset or None) of a record's variant name."""
+    variant, _, preset = name.partition(PRESET_MARK)
+    return variant, preset or None
+
+
+def label(name: str) -> str:
+    """How tables and figures name a record's variant ("Ours [agent_zero_cv]" under a compared
+    preset)."""
+    variant, preset = split_variant(name)
+    return LABELS[variant] if preset is None else f"{LABELS[variant]} [{preset}]"
+
 
 @dataclass(frozen=True, order=True)
 class Measure:

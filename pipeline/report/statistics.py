@@ -30,6 +30,7 @@ from pipeline.report.records import (
     VariantSummary,
     Verdict,
     WelchTest,
+    split_variant,
 )
 
 ALPHA_S_ATTN = 0.01  # the paper's threshold for Ours vs S-Attn
@@ -99,11 +100,17 @@ def difference(ours: list[float], other: list[float]) -> Difference:
 
 
 def compare(runs: Iterable[RunRecord]) -> dict[tuple[str, str, str], Comparison]:
-    """Every pair of `PAIRS` whose two variants were both run on a setting."""
+    """Every pair of `PAIRS` whose two variants were both run on a setting, and each variant
+    run under a compared preset against the same variant under the protocol's preset."""
     groups = group_runs(runs)
     out = {}
     for setting in dict.fromkeys(s for s, _ in groups):
-        for first, other in PAIRS:
+        compared = [
+            (name, split_variant(name)[0])
+            for s, name in groups
+            if s == setting and split_variant(name)[1] is not None
+        ]
+        for first, other in (*PAIRS, *compared):
             if (setting, first) in groups and (setting, other) in groups:
                 cells = {
                     m: difference(
