@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -48,13 +50,23 @@ def weights_by_case(path: Path, run: Path) -> dict:
     return result
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def measure_runs(doc: str, measure: Callable[[Path, Path], dict]) -> list[dict]:
+    """The command line FILE.h5 RUN_DIR... of these experiments: `measure(file, run)` of each
+    run, one torch thread; a missing or unusable input exits 2 with one line."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     parser.add_argument("file", type=Path, help="trajectory file (HDF5) the runs trained on")
     parser.add_argument("runs", nargs="+", type=Path, help="run directories (with best.pt)")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    rows = [weights_by_case(args.file, run) for run in args.runs]
+    try:
+        return [measure(args.file, run) for run in args.runs]
+    except (OSError, ValueError) as error:
+        print(f"{parser.prog}: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def main() -> None:
+    rows = measure_runs(__doc__, weights_by_case)
     for row in rows:
         shown = "; ".join(
             f"{pair}: " + ", ".join(f"{case} {w:.2f}" for case, w in cases.items())

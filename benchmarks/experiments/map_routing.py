@@ -17,12 +17,11 @@ has the figures. The last line of stdout is one JSON object.
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 from pathlib import Path
 
 import torch
+from attention_by_case import measure_runs
 
 from predictor.data import TrajectoryDataset
 from predictor.evaluation import load_model
@@ -111,16 +110,7 @@ def routing(path: Path, run: Path) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("file", type=Path, help="trajectory file (HDF5) the runs trained on")
-    parser.add_argument("runs", nargs="+", type=Path, help="run directories (with best.pt)")
-    args = parser.parse_args()
-    torch.set_num_threads(1)
-    try:
-        rows = [routing(args.file, run) for run in args.runs]
-    except (OSError, ValueError) as error:
-        print(f"map_routing: {error}", file=sys.stderr)
-        raise SystemExit(2) from None
+    rows = measure_runs(__doc__, routing)
     for row in rows:
         for role, cases in row["roles"].items():
             shown = "; ".join(_describe(case, c) for case, c in cases.items())
