@@ -31,6 +31,7 @@ against) are evaluated once per setting (deterministic).
 | `hc_go`     | halting_car  | go         | 15 + 50 (ratio 0.3)         |
 
 Groups for `--settings`: `main` (dm_r0.3, hc_stop), `ratio`, `size`, `halting`, `all`.
+Every setting has 50 test trajectories per case and a 20 % validation split.
 
 Presets side by side (`--compare-presets P[,Q]`, `--compare-variants`, default ours): the
 variants named are also trained under each preset named, on the same datasets with the same
@@ -38,7 +39,6 @@ seeds and epochs, and the report gives them a section of their own (per setting:
 main cars and of all cars, attention weight, Welch's p against `--preset`) and rows in the
 bar table. A variant whose configuration a compared preset leaves unchanged (S-Attn has no
 highway, so `agent` and `agent_zero_cv` train the same S-Attn) is one run, trained once.
-Every setting has 50 test trajectories per case and a 20 % validation split.
 
 Results store (`--store`, default results/, none with --quick): each finished run's eval.json
 (and, for the figure runs, scenes.npz), no checkpoints, under the same relative path as in the
