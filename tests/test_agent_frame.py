@@ -187,7 +187,11 @@ def test_presets_paper_is_the_dataclass_defaults_and_agent_differs():
     assert model == ModelConfig() and train == TrainConfig()
     model, train = make_configs("ours", preset="agent")
     assert model.frame == "agent" and train.mean_loss == "displacement"
-    assert set(PRESETS) >= {"paper", "agent"}
+    assert set(PRESETS) >= {"paper", "agent", "crowd"}
+    crowd_model, crowd_train = make_configs("ours", preset="crowd")  # agent, for pedestrians
+    assert (crowd_model.neighbours, crowd_model.neighbour_k) == ("knn", 8)
+    assert crowd_model.highway_steps == model.highway_steps and not crowd_model.highway_attended
+    assert (crowd_train.batch_size, crowd_train.epochs) == (16, 20)
     with pytest.raises(ValueError, match="unknown preset"):
         make_configs("ours", preset="nope")
 

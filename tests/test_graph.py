@@ -253,7 +253,9 @@ def test_standardisation_statistics_equal_the_dense_ones():
 
 
 # --------------------------------------------------------------------------- sparse graphs
-@pytest.mark.parametrize(("mode", "preset"), [("radius", "paper"), ("knn", "agent")])
+@pytest.mark.parametrize(
+    ("mode", "preset"), [("radius", "paper"), ("knn", "agent"), ("knn", "crowd")]
+)
 def test_attention_sums_to_one_over_present_neighbours_and_is_zero_off_the_graph(mode, preset):
     positions, valid, _, roles = crowd(batch=3, steps=10, agents=9)
     packed, _ = fitted_pair(
