@@ -20,10 +20,10 @@ venv: $(STAMP)
 demo: venv  ## run the main job on its built-in default and print where the results are
 	$(BIN)/python tools/demo.py
 
-test: venv  ## lint and format check, then the whole test suite
+test: venv  ## lint and format check, then the whole test suite, one pytest worker per CPU
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto --dist loadfile
 
 bench: venv  ## every benchmark; figures go to benchmarks/results.json
 	$(BIN)/python benchmarks/run_all.py
