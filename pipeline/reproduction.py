@@ -12,8 +12,10 @@ per run (pipeline.run_plan names them): train's files plus `eval.json`, written 
 atomically, and for seed 0 of ours and s_attn `scenes.npz`, the predictions of the figure
 scenes. A run with its eval.json is reused; a run with last.pt resumes (bit-identical to an
 uninterrupted one). `invocations.jsonl` logs every invocation that ran jobs (date, command,
-wall seconds), for the report's wall time. The keys do not hash the code: delete the cache
-after changing how experts, model or training behave.
+wall seconds), for the report's wall time: in the results store when there is one (so the log
+is committed with the results it produced), else in the cache; the report reads both. The
+keys do not hash the code: delete the cache after changing how experts, model or training
+behave.
 
 Results store (`store`, optional; pipeline.result_store): each finished run's eval.json (and
 scenes.npz), committed, so a protocol can be completed over several sittings or machines. A
@@ -43,7 +45,7 @@ from __future__ import annotations
 import datetime
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, astuple, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -52,7 +54,7 @@ from pipeline.backends import Runner
 from pipeline.files import atomic_output
 from pipeline.generation import UnsafeExpertError, generate_dataset
 from pipeline.pool import check_stop
-from pipeline.protocol import Protocol
+from pipeline.protocol import Protocol, ReproductionError
 from pipeline.report.records import BASELINES
 from pipeline.result_store import (
     collect,
@@ -73,7 +75,7 @@ from pipeline.run_plan import (
     unique_runs,
 )
 
-INVOCATION_LOG = "invocations.jsonl"  # in the cache: date, command, wall seconds, jobs run
+INVOCATION_LOG = "invocations.jsonl"  # store or cache: date, command, wall seconds, jobs run
 RAY_RETRIES = 1  # a Ray task whose worker dies is run once more; dying twice fails the job
 
 
@@ -222,7 +224,7 @@ class RunCounts:
 
 @dataclass(frozen=True)
 class Invocation:
-    """One logged invocation that ran jobs into the cache."""
+    """One logged invocation that ran jobs."""
 
     date: str
     command: str
@@ -302,22 +304,38 @@ def execute(
     )
 
 
+def read_invocation(path: Path, number: int, line: str) -> Invocation:
+    """Line `number` of the invocation log at `path`; ReproductionError if it is not one."""
+    try:
+        return Invocation(**json.loads(line))
+    except (json.JSONDecodeError, TypeError) as err:
+        message = f"{path}, line {number}: not an invocation record ({err}); fix or delete it"
+        raise ReproductionError(message) from None
+
+
 def log_invocation(
-    out_dir: Path, command: str, seconds: float, counts: RunCounts
+    out_dir: Path, store: Path | None, command: str, seconds: float, counts: RunCounts
 ) -> tuple[Invocation, ...]:
-    """Append this invocation to the cache's log if it ran any job; return every logged one,
-    so a report rebuilt from the cache can still give the wall time spent."""
-    path = out_dir / INVOCATION_LOG
+    """Append this invocation to the log if it ran any job (the store's log when there is a
+    store, else the cache's); return every invocation logged in either, oldest first and each
+    once, so a report rebuilt on another machine can still give the wall time spent."""
     ran = counts.trained + counts.resumed
     if ran:
         now = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
         entry = Invocation(now, command, round(seconds, 1), ran)
-        with open(path, "a") as stream:
+        log_dir = store if store is not None else out_dir
+        log_dir.mkdir(parents=True, exist_ok=True)
+        with open(log_dir / INVOCATION_LOG, "a") as stream:
             stream.write(json.dumps(asdict(entry)) + "\n")
-    if not path.is_file():
-        return ()
-    lines = path.read_text().splitlines()
-    return tuple(Invocation(**json.loads(line)) for line in lines if line.strip())
+    logged: dict[tuple, Invocation] = {}
+    for log_dir in (store, out_dir):
+        path = None if log_dir is None else log_dir / INVOCATION_LOG
+        if path is not None and path.is_file():
+            for number, line in enumerate(path.read_text().splitlines(), start=1):
+                if line.strip():
+                    entry = read_invocation(path, number, line)
+                    logged.setdefault(astuple(entry), entry)
+    return tuple(sorted(logged.values(), key=lambda entry: entry.date))
 
 
 # ---------------------------------------------------------------------------------- the whole
@@ -364,7 +382,7 @@ def reproduce(
     report.parent.mkdir(parents=True, exist_ok=True)
     deadline = None if budget_s is None else time.monotonic() + budget_s
     counts = execute(protocol, out_dir, jobs, store, deadline, backend, address)
-    history = log_invocation(out_dir, command, time.perf_counter() - started, counts)
+    history = log_invocation(out_dir, store, command, time.perf_counter() - started, counts)
     source = ReportInput(
         protocol=protocol,
         runs=collect(protocol, out_dir, store),

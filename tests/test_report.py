@@ -326,9 +326,9 @@ def test_history_line_sums_the_wall_time():
 
     history = (Invocation("d1", "c1", 60.0, 3), Invocation("d2", "c2", 90.0, 1))
     line = markdown.history_line(history)
-    assert line.startswith("- Training invocations logged in the cache: 2, 2.5 min wall")
+    assert line.startswith("- Training invocations logged: 2, 2.5 min wall")
     assert "d1: 1.0 min, 3 runs, `c1`; d2: 1.5 min, 1 runs, `c2`" in line
-    assert markdown.history_line(()) == "- Training invocations logged in the cache: none"
+    assert markdown.history_line(()) == "- Training invocations logged: none"
 
 
 def test_code_line_counts_runs_per_commit():

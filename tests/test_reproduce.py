@@ -19,7 +19,7 @@ import pytest
 from conftest import REPO_ROOT, load_tool, run_tool, tool_env
 from scipy import stats
 
-from pipeline import result_store, run_plan
+from pipeline import reproduction, result_store, run_plan
 from pipeline.protocol import SETTING_BY_NAME, Protocol, ReproductionError
 from predictor.evaluation import read_checkpoint
 
@@ -130,7 +130,7 @@ def test_training_invocations_are_logged_and_reported(quick):
     assert first["runs"] == len(quick["before"])  # every job, const_vel's evaluations included
     assert second["runs"] == 1 and "--quick" in second["command"]
     assert 0 < second["seconds"] < first["seconds"]
-    assert "Training invocations logged in the cache: 2," in quick["results"].read_text()
+    assert "Training invocations logged: 2," in quick["results"].read_text()
 
 
 def test_quick_run_writes_the_figures(quick):
@@ -412,6 +412,10 @@ def test_results_store_rebuilds_the_report_in_a_fresh_cache_and_budget_leaves_ru
     assert results[0]["runs"] == results[1]["runs"]
     assert results[0]["aggregates"] == results[1]["aggregates"]
     assert results[1]["counts"]["reused_from_store"] == 4
+    logged = (store / "invocations.jsonl").read_text().splitlines()  # committed with the results
+    assert len(logged) == 1 and json.loads(logged[0])["runs"] == 4
+    assert not (tmp_path / "a" / "invocations.jsonl").exists()
+    assert "Training invocations logged: 1," in (tmp_path / "b" / "RESULTS.md").read_text()
 
     spent, _ = run_reproduce(*STORE_ARGS, "--out-dir", str(tmp_path / "c"), "--budget-minutes", "0")
     assert spent.returncode == 0, spent.stderr[-2000:]
@@ -420,3 +424,22 @@ def test_results_store_rebuilds_the_report_in_a_fresh_cache_and_budget_leaves_ru
     )
     assert not list((tmp_path / "c").rglob("eval.json"))
     assert "not started: time budget" in (tmp_path / "c" / "RESULTS.md").read_text()
+
+
+def test_invocation_log_reads_store_and_cache_once_each_and_rejects_a_bad_line(tmp_path):
+    store, cache = tmp_path / "store", tmp_path / "cache"
+    ran = reproduction.RunCounts(0, 1, runs=3, reused=1, trained=1, resumed=1, failed=0)
+    idle = reproduction.RunCounts(0, 1, runs=3, reused=3, trained=0, resumed=0, failed=0)
+    first = reproduction.log_invocation(cache, None, "no store", 60.0, ran)
+    assert [(e.command, e.runs) for e in first] == [("no store", 2)]
+    (store).mkdir()
+    (store / "invocations.jsonl").write_text((cache / "invocations.jsonl").read_text())  # a copy
+    both = reproduction.log_invocation(cache, store, "with store", 30.0, ran)
+    assert [e.command for e in both] == ["no store", "with store"]  # the copy counted once
+    assert len((store / "invocations.jsonl").read_text().splitlines()) == 2
+    assert len((cache / "invocations.jsonl").read_text().splitlines()) == 1
+    assert reproduction.log_invocation(cache, store, "nothing ran", 1.0, idle) == both
+    with open(store / "invocations.jsonl", "a") as stream:
+        stream.write("{not json\n")
+    with pytest.raises(ReproductionError, match=r"invocations.jsonl, line 3: not an invocation"):
+        reproduction.log_invocation(cache, store, "nothing ran", 1.0, idle)

@@ -45,7 +45,7 @@ class ReportInput:
     counts: RunCounts
     jobs: int
     seconds: float  # wall time of the reproduction before the report
-    history: tuple[Invocation, ...] = ()  # invocations that trained runs into the cache
+    history: tuple[Invocation, ...] = ()  # logged invocations that trained runs
 
 
 @dataclass(frozen=True)

@@ -252,18 +252,15 @@ def claims_table(rows: Sequence[ClaimRow]) -> str:
 
 
 def history_line(history: Sequence) -> str:
-    """Markdown bullet of the invocations that trained runs into the cache (wall time)."""
+    """Markdown bullet of the logged invocations that trained runs (wall time)."""
     if not history:
-        return "- Training invocations logged in the cache: none"
+        return "- Training invocations logged: none"
     total = sum(entry.seconds for entry in history) / 60
     items = "; ".join(
         f"{entry.date}: {entry.seconds / 60:.1f} min, {entry.runs} runs, `{entry.command}`"
         for entry in history
     )
-    return (
-        f"- Training invocations logged in the cache: {len(history)}, {total:.1f} min wall "
-        f"in all ({items})"
-    )
+    return f"- Training invocations logged: {len(history)}, {total:.1f} min wall in all ({items})"
 
 
 def code_line(runs: Sequence) -> str:
