@@ -52,8 +52,9 @@ Cache (`--out-dir`, default outputs/reproduce): datasets and runs, keyed by ever
 pipeline/run_plan.py). A run with its eval.json is reused; a run with last.pt resumes
 (bit-identical to an uninterrupted one); Ctrl-C stops every job at its next safe point (exit
 130) and a rerun of the same command continues. `invocations.jsonl` logs every invocation that
-ran jobs (date, command, wall seconds), for the report's wall time. Delete the cache after
-changing how experts, model or training behave: the keys hash configurations, not code.
+ran jobs (date, command, wall seconds), for the report's wall time: in the results store (so
+it is committed with the results), else in the cache. Delete the cache after changing how
+experts, model or training behave: the keys hash configurations, not code.
 
 Backends (`--backend`): `local` (default) runs `--jobs` processes here; `ray` runs every job
 (and every missing dataset) as a Ray task of one CPU on the cluster at `--address` (default
