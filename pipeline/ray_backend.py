@@ -26,6 +26,10 @@ from typing import Any
 from pipeline.pool import due_items
 
 DEFAULT_POLL_SECONDS = 0.1  # how often the caller's `check` runs while tasks are out
+# Ray starts its workers at niceness 15 (raylet `worker_niceness`), so beside any busy process
+# a local instance's tasks got a few per cent of a core (benchmarks/README.md: 7-10x slower);
+# a local instance runs the caller's own work, as the local backend's processes do: same niceness
+LOCAL_WORKER_NICENESS = 0
 
 
 class RayUnavailableError(RuntimeError):
@@ -46,15 +50,20 @@ def require_ray():
 @contextlib.contextmanager
 def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iterator[Any]:
     """Yield the `ray` module, connected: to a running session, to `address` (or RAY_ADDRESS),
-    or to a new local instance with `num_cpus` CPUs, shut down on leaving."""
+    or to a new local instance with `num_cpus` CPUs whose workers run at the caller's priority
+    (`LOCAL_WORKER_NICENESS`), shut down on leaving."""
     ray = require_ray()
     if ray.is_initialized():
         yield ray
         return
     address = address or os.environ.get("RAY_ADDRESS") or None
     options = {"logging_level": logging.WARNING, "log_to_driver": False}
-    if address is None:
-        options.update(num_cpus=num_cpus, include_dashboard=False)
+    if address is None:  # a local instance: ours to configure
+        options.update(
+            num_cpus=num_cpus,
+            include_dashboard=False,
+            _system_config={"worker_niceness": LOCAL_WORKER_NICENESS},
+        )
     handlers = _signal_handlers()
     ray.init(address=address, **options)
     _restore(handlers)  # in case Ray installed its own: Ctrl-C stays the caller's business

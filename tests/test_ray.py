@@ -44,6 +44,15 @@ def session():
             yield connected
 
 
+def test_local_workers_run_at_the_callers_priority(session):
+    """Ray's default worker niceness (15) starves its tasks beside any busy process."""
+
+    def niceness(_: int) -> int:
+        return os.nice(0)
+
+    assert map_in_order(niceness, [0, 1]) == [os.nice(0)] * 2
+
+
 def test_generation_through_ray_writes_the_same_bytes(session, tmp_path):
     config = GenerateConfig.for_scenario("halting_car", num_major=6, num_minor=3, num_test=4)
     generate_dataset(config, tmp_path / "local.h5", progress=False, batch_scenes=1)  # one by one
