@@ -135,7 +135,7 @@ PROGRESS = re.compile(rb"\| *[1-9]\d*/\d+ \[")  # tqdm: at least one trajectory 
 
 
 def start_and_wait_for_progress(
-    out: Path, workers: int, timeout: float = 180, extra: tuple[str, ...] = ()
+    out: Path, workers: int, timeout: float = 600, extra: tuple[str, ...] = ()
 ):
     """Start a long generation; return (process, stderr so far) once a trajectory is done."""
     process = subprocess.Popen(
@@ -212,4 +212,5 @@ def test_interrupted_run_leaves_no_file(tmp_path, sig, to_group, run):
     assert sum("error" in line for line in lines) == 1
     assert stdout == b""
     assert list(tmp_path.iterdir()) == []
-    assert group_ends(process.pid, within=30.0)  # no worker (nor Ray process) outlives the tool
+    # no worker (nor Ray process) outlives the tool; generous for Ray's shutdown on a busy machine
+    assert group_ends(process.pid, within=120.0)

@@ -195,7 +195,7 @@ def test_reproduce_cli_through_ray(tmp_path):
         capture_output=True,
         text=True,
         env=tool_env(),
-        timeout=300,
+        timeout=900,  # seconds of work, but it shares 2 cores with other test files
     )
     assert done.returncode == 0, done.stderr[-2000:]
     assert "1 runs (1 trained, 0 resumed, 0 reused, 0 failed)" in done.stdout
@@ -205,11 +205,13 @@ def test_reproduce_cli_through_ray(tmp_path):
 @pytest.mark.slow
 def test_ctrl_c_cancels_a_ray_sweep_and_the_rerun_resumes(tmp_path):
     """Ctrl-C to the process group (the command, its Ray instance; the workers have their own
-    groups) once every run has finished an epoch: exit 130, one line, no result; the same
-    command then resumes both runs from their last.pt."""
+    groups) once a run has finished an epoch: exit 130, one line, no result; the same command
+    then resumes every run that had saved a last.pt and trains the other (if its worker had not
+    finished an epoch: the signal does not wait for the second worker, so a slow start cannot
+    let the first run finish before it)."""
     cache = tmp_path / "cache"
     argv = ["--quick", "--settings", "hc_go", "--variants", "ours", "--seeds", "2"]
-    epochs = 6  # enough that no run finishes before the signal (an epoch takes seconds)
+    epochs = 6  # the signal comes after the first epoch of the first run
     argv += ["--epochs", str(epochs), "--backend", "ray", "--jobs", "2", "--out-dir", str(cache)]
     command = [sys.executable, str(REPO_ROOT / "tools" / "reproduce.py"), *argv]
     env = tool_env()
@@ -222,7 +224,7 @@ def test_ctrl_c_cancels_a_ray_sweep_and_the_rerun_resumes(tmp_path):
         start_new_session=True,
     )
     deadline = time.monotonic() + 300
-    while len(list(cache.glob("runs/*/ours/*/last.pt"))) < 2:
+    while not list(cache.glob("runs/*/ours/*/last.pt")):
         if process.poll() is not None or time.monotonic() > deadline:
             process.kill()
             pytest.fail(f"no epoch finished in time: {process.communicate()[1][-2000:]}")
@@ -232,10 +234,12 @@ def test_ctrl_c_cancels_a_ray_sweep_and_the_rerun_resumes(tmp_path):
     assert process.returncode == 130, err[-2000:]
     assert err.splitlines()[-1].startswith("error: interrupted; finished runs are cached")
     assert out == "" and "Traceback" not in err and not list(cache.rglob("eval.json"))
-    # generous: a loaded machine ran the resumed runs past 300 s (Ray's workers run niced)
+    stopped = len(list(cache.glob("runs/*/ours/*/last.pt")))  # 1 or 2
+    # generous: a loaded machine ran the resumed runs past 300 s (when Ray's workers ran niced)
     resumed = subprocess.run(command, capture_output=True, text=True, env=env, timeout=1200)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
-    assert "2 runs (0 trained, 2 resumed, 0 reused, 0 failed)" in resumed.stdout
+    summary = f"2 runs ({2 - stopped} trained, {stopped} resumed, 0 reused, 0 failed)"
+    assert summary in resumed.stdout
     for metrics in cache.glob("runs/*/ours/*/metrics.jsonl"):
         done = [json.loads(line)["epoch"] for line in metrics.read_text().splitlines()]
         assert done == list(range(1, epochs + 1))  # each epoch once: none lost, none repeated
