@@ -432,7 +432,7 @@ def test_invocation_log_reads_store_and_cache_once_each_and_rejects_a_bad_line(t
     idle = reproduction.RunCounts(0, 1, runs=3, reused=3, trained=0, resumed=0, failed=0)
     first = reproduction.log_invocation(cache, None, "no store", 60.0, ran)
     assert [(e.command, e.runs) for e in first] == [("no store", 2)]
-    (store).mkdir()
+    store.mkdir()
     (store / "invocations.jsonl").write_text((cache / "invocations.jsonl").read_text())  # a copy
     both = reproduction.log_invocation(cache, store, "with store", 30.0, ran)
     assert [e.command for e in both] == ["no store", "with store"]  # the copy counted once
