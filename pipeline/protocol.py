@@ -21,6 +21,14 @@ PAPER_EPOCHS, PAPER_SEEDS = 200, 10
 QUICK_EPOCHS, QUICK_SEEDS, QUICK_NUM_TEST = 1, 2, 5
 QUICK_MAX_MAJOR = 10  # a quick protocol shrinks every setting to at most 10 major trajectories
 QUICK_MIN_MINOR = 2
+# A reproduction without arguments: this project's model (the agent preset, docs/PREDICTOR.md)
+# on every setting, and the paper's literal model beside it on the main settings.
+REPRODUCTION_PRESET = "agent"
+REPRODUCTION_COMPARED = "paper@main"
+# --quick is a smoke test of the machinery: the paper preset alone, since the agent preset's
+# first highway fit (scikit-learn's grid search, before epoch 1) costs ~30-60 s per run
+# whatever the data size, measured, against ~4 s for a whole quick paper run's training
+QUICK_PRESET = "paper"
 
 
 class ReproductionError(ValueError):
@@ -106,6 +114,13 @@ class Protocol:
     # (same settings, seeds and epochs), e.g. the paper's literal version beside a default
     compare_presets: tuple[str, ...] = ()
     compare_variants: tuple[str, ...] = ("ours",)  # trained variants run under compare_presets
+    # (preset, setting names) pairs that limit a compared preset to those settings (others: all)
+    compare_only: tuple[tuple[str, tuple[str, ...]], ...] = ()
+
+    def presets_compared_on(self, setting: str) -> tuple[str, ...]:
+        """The compared presets run on a setting: all of them unless `compare_only` limits one."""
+        limits = dict(self.compare_only)
+        return tuple(p for p in self.compare_presets if setting in limits.get(p, (setting,)))
 
     def counts(self, setting: Setting) -> tuple[int, int]:
         """(num_major, num_minor) generated for a setting; a quick protocol caps the major count."""
@@ -135,3 +150,20 @@ def pick(
                 f"unknown {what} {name!r}; choose from {', '.join((*known, *groups))}"
             )
     return tuple(name for name in known if name in chosen)
+
+
+def pick_compared(text: str) -> tuple[tuple[str, ...], tuple[tuple[str, tuple[str, ...]], ...]]:
+    """Compared presets from "P,Q@group": (presets, compare_only). `@` limits a preset to one
+    setting or group of settings; ReproductionError on an unknown setting or a repeated preset."""
+    presets, only = [], []
+    for part in (item.strip() for item in text.split(",")):
+        if not part:
+            continue
+        preset, _, scope = part.partition("@")
+        preset = preset.strip()
+        if preset in presets:
+            raise ReproductionError(f"--compare-presets names {preset!r} twice")
+        presets.append(preset)
+        if scope.strip():
+            only.append((preset, pick(scope, tuple(SETTING_BY_NAME), GROUPS, "setting")))
+    return tuple(presets), tuple(only)

@@ -124,9 +124,9 @@ def run_dir(
 def setting_jobs(
     protocol: Protocol, setting: Setting, out_dir: Path, store: Path | None = None
 ) -> list[Job]:
-    """The jobs of one setting, in variant then seed order, then those of each compared preset
-    (`Protocol.compare_presets`: its `compare_variants`, no figure scenes); with a results
-    `store`, each job keeps its results under the same relative path there as under
+    """The jobs of one setting, in variant then seed order, then those of each preset compared
+    on it (`Protocol.presets_compared_on`: its `compare_variants`, no figure scenes); with a
+    results `store`, each job keeps its results under the same relative path there as under
     out_dir/runs. A compared preset whose configuration of a variant equals the protocol's
     gives a job with the same run directory (`unique_runs` runs it once)."""
     spec = data_spec(protocol, setting)
@@ -134,7 +134,7 @@ def setting_jobs(
     planned = [(protocol.preset, variant, False) for variant in protocol.variants]
     planned += [
         (preset, variant, True)
-        for preset in protocol.compare_presets
+        for preset in protocol.presets_compared_on(setting.name)
         for variant in protocol.compare_variants
     ]
     jobs = []

@@ -311,6 +311,11 @@ def test_presets_table_and_bar_rows_per_preset():
     assert bar[4].startswith("| `hc_go` | Ours [agent_zero_cv] | major | 1.000 | n/a |")
     assert markdown.compared_line(protocol) == ", compared with `agent_zero_cv` (Ours)"
     assert markdown.compared_line(Protocol((), ("ours",), 1, 1)) == ""
+    limited = replace(protocol, compare_only=(("agent_zero_cv", ("dm_r0.3",)),))
+    assert markdown.compared_line(limited) == (
+        ", compared with `agent_zero_cv` (on `dm_r0.3`) (Ours)"
+    )
+    assert markdown.presets_table(results, "hc_go", limited).splitlines()[2:] == [lines[2]]
 
 
 def test_pvalue_table_gives_p_and_difference():

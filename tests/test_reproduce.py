@@ -30,7 +30,11 @@ BASELINE_VARIANTS = ("const_vel", "ridge", "ridge_labelled", "ridge_labelled_rel
 VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct", *BASELINE_VARIANTS)
 # the baselines are evaluated once, not trained per seed
 NOTES = "The lead's notes.\n\n- verbatim *markdown* line\n"
-REDONE = ("nonsmooth", 1)  # this run's eval.json is deleted before the second run
+REDONE = ("nonsmooth", 1)
+# a compared preset on the main settings only (S-Attn: the agent preset's without a highway,
+# whose first fit would cost ~30 s a run)
+COMPARE_ARGS = ("--compare-presets", "agent@main", "--compare-variants", "s_attn")
+COMPARED = "s_attn@agent"  # this run's eval.json is deleted before the second run
 
 
 def run_reproduce(*args: str) -> tuple[subprocess.CompletedProcess, float]:
@@ -53,7 +57,7 @@ def quick(tmp_path_factory) -> dict:
     one run's eval.json."""
     root = tmp_path_factory.mktemp("reproduce")
     cache, results = root / "cache", root / "report" / "RESULTS.md"
-    args = ("--quick", "--out-dir", str(cache), "--report", str(results))
+    args = ("--quick", "--out-dir", str(cache), "--report", str(results), *COMPARE_ARGS)
     first, first_s = run_reproduce(*args)
     assert first.returncode == 0, first.stderr[-2000:]
     markdown_first = results.read_text()
@@ -121,6 +125,9 @@ def test_quick_run_writes_markdown_with_tables(quick):
         ) == len(SETTINGS)
     assert text.count("| Ours vs S-Attn | ") == len(SETTINGS)
     assert "cores" in text and "torch" in text and "--quick" in text
+    assert "compared with `agent` (on `dm_r0.3`, `hc_stop`) (S-Attn)" in text
+    assert "## Presets side by side" in text
+    assert sum(line.startswith("| S-Attn [agent] | ") for line in text.splitlines()) == 2
     assert "15/30 = 0.5" in text
 
 
@@ -162,10 +169,17 @@ def test_results_json_has_every_setting_variant_and_seed(quick):
     assert [s["name"] for s in document["protocol"]["settings"]] == list(SETTINGS)
     assert tuple(document["protocol"]["variants"]) == VARIANTS
     assert document["protocol"]["quick"] and document["protocol"]["epochs"] == 1
+    assert document["protocol"]["preset"] == "paper"  # --quick's default
+    assert document["protocol"]["compare_presets"] == ["agent"]
     runs = document["runs"]
-    assert len(runs) == len(SETTINGS) * (5 * 2 + len(BASELINE_VARIANTS))
+    assert len(runs) == len(SETTINGS) * (5 * 2 + len(BASELINE_VARIANTS)) + 2 * 2
     for setting in SETTINGS:
-        assert set(document["aggregates"][setting]) == set(VARIANTS)
+        agent = [COMPARED] if setting in ("dm_r0.3", "hc_stop") else []  # agent@main only
+        assert set(document["aggregates"][setting]) == {*VARIANTS, *agent}
+        seeds = sorted(
+            r["seed"] for r in runs if (r["setting"], r["variant"]) == (setting, COMPARED)
+        )
+        assert seeds == ([0, 1] if agent else [])
         for variant in VARIANTS:
             seeds = sorted(
                 r["seed"] for r in runs if r["setting"] == setting and r["variant"] == variant
@@ -240,9 +254,10 @@ def test_existing_report_needs_overwrite(quick):
         (["--budget-minutes", "nan"], "--budget-minutes must not be negative"),
         (["--store", str(REPO_ROOT / "README.md")], "exists and is not a directory"),
         (["--store", "s", "--no-store"], "not allowed with argument"),
-        (["--compare-presets", "agent,bogus"], "unknown compared preset 'bogus'"),
-        (["--compare-presets", "paper"], "names 'paper', the report's own --preset"),
-        (["--compare-presets", "agent,agent"], "names a preset twice"),
+        (["--compare-presets", "agent_zero_cv,bogus"], "unknown compared preset 'bogus'"),
+        (["--compare-presets", "agent"], "names 'agent', the report's own --preset"),
+        (["--compare-presets", "agent_zero_cv,agent_zero_cv@main"], "names 'agent_zero_cv' twice"),
+        (["--compare-presets", "paper@dm_r0.5"], "unknown setting 'dm_r0.5'"),
         (["--compare-presets", "agent", "--compare-variants", "ridge"], "compared variant 'ridge'"),
     ],
 )
@@ -253,6 +268,28 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, args, message):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err
     assert not (tmp_path / "c").exists()
+
+
+def test_no_arguments_mean_the_agent_preset_with_the_paper_preset_on_the_main_settings():
+    """Issue 16's protocol: this project's model on every setting, the paper's literal model
+    beside it on the main settings, 10 seeds of 200 epochs."""
+    default = reproduce.protocol_from_args(reproduce.parse_args([]))
+    assert (default.preset, default.seeds, default.epochs) == ("agent", 10, 200)
+    assert [s.name for s in default.settings] == list(SETTINGS)
+    assert default.compare_presets == ("paper",) and default.compare_variants == ("ours",)
+    assert {s.name: default.presets_compared_on(s.name) for s in default.settings} == {
+        name: ("paper",) if name in ("dm_r0.3", "hc_stop") else () for name in SETTINGS
+    }
+    for args in (["--preset", "paper"], ["--quick"]):
+        paper = reproduce.protocol_from_args(reproduce.parse_args(args))
+        assert paper.preset == "paper" and paper.compare_presets == ()
+    none = reproduce.protocol_from_args(reproduce.parse_args(["--compare-presets", ""]))
+    assert none.compare_presets == ()
+    both = reproduce.parse_args(["--compare-presets", "agent_zero_cv, paper@hc_go"])
+    both = reproduce.protocol_from_args(both)
+    assert both.compare_presets == ("agent_zero_cv", "paper")
+    assert both.presets_compared_on("hc_go") == ("agent_zero_cv", "paper")
+    assert both.presets_compared_on("hc_stop") == ("agent_zero_cv",)
 
 
 def test_default_report_goes_under_the_output_directory(tmp_path, monkeypatch):

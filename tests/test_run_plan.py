@@ -110,6 +110,27 @@ def test_compared_presets_add_their_variants_jobs_named_apart(tmp_path):
     assert [j.compared for j in run_plan.unique_runs(list(reversed(jobs)))].count(True) == 2
 
 
+def test_a_compared_preset_limited_to_some_settings_is_planned_only_there(tmp_path):
+    """compare_only ("paper@main"): the paper preset's runs on the main settings, none elsewhere."""
+    protocol = Protocol(
+        (SETTING_BY_NAME["dm_r0.3"], SETTING_BY_NAME["dm_r0.8"]),
+        ("ours",),
+        1,
+        5,
+        preset="agent",
+        compare_presets=("agent_zero_cv", "paper"),
+        compare_only=(("paper", ("dm_r0.3", "hc_stop")),),
+    )
+    planned = {
+        setting.name: [j.record_variant for j in run_plan.setting_jobs(protocol, setting, tmp_path)]
+        for setting in protocol.settings
+    }
+    assert planned == {
+        "dm_r0.3": ["ours", "ours@agent_zero_cv", "ours@paper"],
+        "dm_r0.8": ["ours", "ours@agent_zero_cv"],
+    }
+
+
 def test_collect_names_the_compared_presets_runs_apart(tmp_path):
     """Runs found in the results store are read into records named by Job.record_variant."""
     setting = SETTING_BY_NAME["hc_go"]

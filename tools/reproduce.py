@@ -1,12 +1,12 @@
 """Reproduce the paper's synthetic experiments on fresh data and write a report (RESULTS.md).
 
 Examples:
-    python tools/reproduce.py                      # the full protocol (hours; see below)
+    python tools/reproduce.py                      # the full protocol (days; see below)
     python tools/reproduce.py --settings main --seeds 3 --jobs 2
-    python tools/reproduce.py --quick              # tiny smoke version of everything (~1-2 min)
+    python tools/reproduce.py --quick              # tiny smoke version, paper preset (~1-2 min)
     python tools/reproduce.py --settings main --seeds 5 --report docs/RESULTS.md --overwrite
     python tools/reproduce.py --settings main --backend ray --address HEAD_IP:6379
-    python tools/reproduce.py --preset agent --compare-presets agent_zero_cv,paper --seeds 5
+    python tools/reproduce.py --compare-presets agent_zero_cv,paper@main --seeds 5
 
 The report goes to OUT_DIR/RESULTS.md (default outputs/reproduce/RESULTS.md), with
 results.json and the figures (results/) beside it; `--report docs/RESULTS.md --overwrite`
@@ -14,11 +14,12 @@ replaces the repository's published one.
 
 Protocol (paper, Sec. V; pipeline/reproduction.py): for every setting one dataset is generated
 with dataset seed 0 (so all variants and seeds see the same trajectories); each trained variant
-(`ours`, `s_attn`, `nonsmooth`, `average`, `correct`) is trained with training seeds 0..k-1
-(`--seeds k`, 10 in the paper) for `--epochs` (200) and evaluated from its best.pt (lowest
-validation ADE of the main agents) on the test split; the baselines (`const_vel`, `ridge` and
-the oracle ridges `ridge_labelled` and `ridge_labelled_relation`, the bar the report checks Ours
-against) are evaluated once per setting (deterministic).
+(`ours`, `s_attn`, `nonsmooth`, `average`, `correct`) is trained under `--preset` (default
+`agent`, this project's model; `paper`, the paper's literal one, with --quick) with training
+seeds 0..k-1 (`--seeds k`, 10 in the paper) for `--epochs` (200) and evaluated from its best.pt
+(lowest validation ADE of the main agents) on the test split; the baselines (`const_vel`,
+`ridge` and the oracle ridges `ridge_labelled` and `ridge_labelled_relation`, the bar the report
+checks Ours against) are evaluated once per setting (deterministic).
 
 | setting     | scenario     | major case | minor + major (train + val) |
 |-------------|--------------|------------|-----------------------------|
@@ -37,8 +38,11 @@ Presets side by side (`--compare-presets P[,Q]`, `--compare-variants`, default o
 variants named are also trained under each preset named, on the same datasets with the same
 seeds and epochs, and the report gives them a section of their own (per setting: ADE of the
 main cars and of all cars, attention weight, Welch's p against `--preset`) and rows in the
-bar table. A variant whose configuration a compared preset leaves unchanged (S-Attn has no
-highway, so `agent` and `agent_zero_cv` train the same S-Attn) is one run, trained once.
+bar table. `P@NAME` runs P only on a setting or group (`paper@main`). The default,
+`paper@main`, sets the paper's literal model beside this project's on the main settings (none
+when `--preset paper`; `--compare-presets ''` for none). A variant whose configuration a
+compared preset leaves unchanged (S-Attn has no highway, so `agent` and `agent_zero_cv` train
+the same S-Attn) is one run, trained once.
 
 Results store (`--store`, default results/, none with --quick): each finished run's eval.json
 (and, for the figure runs, scenes.npz), no checkpoints, under the same relative path as in the
@@ -65,15 +69,16 @@ at the same path. A job whose worker dies is run once more; a job that raises or
 reported as failed (exit 1) and the others go on. Ray is an optional extra: pip install -e
 '.[ray]'.
 
-Expected wall time, measured on the 2-core AMD EPYC development VM (1 torch thread, other work
-running; epoch times include validation): the variants with the sequence loss (ours,
-nonsmooth, average, correct) cost ~0.046 s per training scene and epoch, s_attn ~0.019 s
-(dm_r0.3, 52 training scenes: ~2.4 s vs ~1.0 s per epoch; dm_30+100, 104 scenes: ~4.7 s vs
-~2.0 s). A 200-epoch run thus takes ~8 min (ours) / ~3.5 min (s_attn) on a ratio-0.3 setting and
-~16 / ~7 min on dm_30+100; evaluation takes seconds. The seven settings hold 378 training scenes
-in all, so the full protocol (350 runs) is ~43 CPU-hours: ~22-26 h with --jobs 2 on two free
-cores. `--settings main` (100 runs) ~6 h; `--quick` ~1 min. Measured: `--settings main --seeds 5
---epochs 100 --jobs 2` took 94 min (52 runs).
+Expected wall time, measured on the 2-core AMD EPYC development VM (1 torch thread per job, 2-3
+jobs sharing the two cores; epoch times include validation; medians of the committed runs'
+train_seconds, 90 epochs, results/): under the agent preset the variants with the sequence loss
+(ours, nonsmooth, average, correct) cost ~0.14 s per training scene and epoch (26-35 runs each;
+fastest ~0.08-0.12 s), s_attn ~0.045 s; the paper preset's Ours ~0.29 s (4 runs, 3 jobs on 2
+cores). A 200-epoch Ours run thus takes ~25 min on a ratio-0.3 setting (52 training scenes) and
+~50 min on dm_30+100 (104). The seven settings hold 378 training scenes in all, so the full
+protocol (350 runs of the agent preset, 20 of the paper preset) is ~145 job-hours: ~3 days with
+--jobs 2 here, which is why the published report (docs/RESULTS.md) has 5 seeds and 90 epochs,
+gathered over several sittings through the results store. `--quick` takes ~1-2 min.
 """
 
 from __future__ import annotations
@@ -95,17 +100,21 @@ from pipeline.protocol import (
     QUICK_EPOCHS,
     QUICK_MAX_MAJOR,
     QUICK_NUM_TEST,
+    QUICK_PRESET,
     QUICK_SEEDS,
+    REPRODUCTION_COMPARED,
+    REPRODUCTION_PRESET,
     SETTING_BY_NAME,
     TRAINED_VARIANTS,
     Protocol,
     ReproductionError,
     pick,
+    pick_compared,
 )
 from pipeline.ray_backend import RayUnavailableError
 from pipeline.reproduction import reproduce
 from pipeline.result_store import DEFAULT_STORE
-from predictor.presets import DEFAULT_PRESET, PRESETS
+from predictor.presets import PRESETS
 
 
 def parse_args(argv: list[str] | None = None):
@@ -135,16 +144,18 @@ def parse_args(argv: list[str] | None = None):
     )
     parser.add_argument(
         "--preset",
-        default=DEFAULT_PRESET,
+        default=None,
         choices=sorted(PRESETS),
-        help="model and training configuration of the trained variants (predictor/config.py "
-        f"PRESETS; default {DEFAULT_PRESET}; paper = the paper's literal version)",
+        help="model and training configuration of the trained variants (predictor/presets.py "
+        f"PRESETS; default {REPRODUCTION_PRESET}, --quick {QUICK_PRESET}; paper = the paper's "
+        "literal version)",
     )
     parser.add_argument(
         "--compare-presets",
-        default="",
+        default=None,
         help="comma-separated presets whose runs of --compare-variants the report shows "
-        "beside --preset's (same settings, seeds and epochs; default none)",
+        "beside --preset's (same seeds and epochs); PRESET@SETTINGS runs one only on a setting "
+        f"or group (default {REPRODUCTION_COMPARED}, none with --preset paper; '' for none)",
     )
     parser.add_argument(
         "--compare-variants",
@@ -173,7 +184,7 @@ def parse_args(argv: list[str] | None = None):
         action="store_true",
         help=f"tiny smoke version: {QUICK_EPOCHS} epoch(s), {QUICK_SEEDS} seeds, "
         f"{QUICK_NUM_TEST} test scenes per case, at most "
-        f"{QUICK_MAX_MAJOR} major trajectories",
+        f"{QUICK_MAX_MAJOR} major trajectories, preset {QUICK_PRESET}",
     )
     parser.add_argument(
         "--out-dir",
@@ -217,20 +228,19 @@ def parse_args(argv: list[str] | None = None):
 
 def protocol_from_args(args) -> Protocol:
     """Validate the arguments (exit 2 with one line on a bad value) and build the protocol."""
+    preset = args.preset or (QUICK_PRESET if args.quick else REPRODUCTION_PRESET)
     try:
         names = pick(args.settings, tuple(SETTING_BY_NAME), GROUPS, "setting")
         variants = pick(args.variants, ALL_VARIANTS, {"all": ALL_VARIANTS}, "variant")
         compared = pick(args.compare_variants, TRAINED_VARIANTS, {}, "compared variant")
-        presets = tuple(p.strip() for p in args.compare_presets.split(",") if p.strip())
+        presets, compare_only = pick_compared(compared_text(args, preset))
     except ReproductionError as err:
         fail(str(err))
-    for preset in presets:
-        if preset not in PRESETS:
-            fail(f"unknown compared preset {preset!r}; choose from {', '.join(sorted(PRESETS))}")
-        if preset == args.preset:
-            fail(f"--compare-presets names {preset!r}, the report's own --preset")
-    if len(set(presets)) < len(presets):
-        fail("--compare-presets names a preset twice")
+    for other in presets:
+        if other not in PRESETS:
+            fail(f"unknown compared preset {other!r}; choose from {', '.join(sorted(PRESETS))}")
+        if other == preset:
+            fail(f"--compare-presets names {other!r}, the report's own --preset")
     seeds = args.seeds if args.seeds is not None else (QUICK_SEEDS if args.quick else PAPER_SEEDS)
     epochs = (
         args.epochs if args.epochs is not None else (QUICK_EPOCHS if args.quick else PAPER_EPOCHS)
@@ -246,10 +256,19 @@ def protocol_from_args(args) -> Protocol:
         QUICK_NUM_TEST if args.quick else NUM_TEST,
         DATA_SEED,
         args.quick,
-        args.preset,
+        preset,
         presets,
         compared,
+        compare_only,
     )
+
+
+def compared_text(args, preset: str) -> str:
+    """--compare-presets as given, else its default: the paper's preset on the main settings
+    beside any other --preset."""
+    if args.compare_presets is not None:
+        return args.compare_presets
+    return "" if preset == "paper" else REPRODUCTION_COMPARED
 
 
 def store_path(args) -> Path | None:

@@ -196,7 +196,8 @@ def presets_table(results: Results, setting: str, protocol: Protocol) -> str:
     header += [f"attn. weight {c}" for c in CASES] + ["runs", "p main ADE (major, minor)"]
     rows = []
     for variant in protocol.compare_variants:
-        names = [variant, *(compared_variant(variant, p) for p in protocol.compare_presets)]
+        presets = protocol.presets_compared_on(setting)
+        names = [variant, *(compared_variant(variant, p) for p in presets)]
         for name in names:
             summary = results.summary(setting, name)
             if summary is None:
@@ -226,7 +227,7 @@ def p_value(p: float | None) -> str:
 def presets_section(report: Report) -> str:
     """The variants of `Protocol.compare_variants` under each preset, per setting."""
     protocol = report.input.protocol
-    compared = ", ".join(f"`{p}`" for p in protocol.compare_presets)
+    compared = ", ".join(compared_name(protocol, p) for p in protocol.compare_presets)
     variants = ", ".join(label(v) for v in protocol.compare_variants)
     parts = [
         f"{variants} under `{protocol.preset}` (the report's preset) and {compared}, same "
@@ -234,7 +235,7 @@ def presets_section(report: Report) -> str:
         f"`{protocol.preset}`."
     ]
     for setting in protocol.settings:
-        if report.results.has_setting(setting.name):
+        if report.results.has_setting(setting.name) and protocol.presets_compared_on(setting.name):
             table_text = presets_table(report.results, setting.name, protocol)
             parts += [f"\n`{setting.name}`:\n", table_text]
     return "\n".join(parts)
@@ -329,8 +330,16 @@ def compared_line(protocol: Protocol) -> str:
     """ ", compared with ..." naming the compared presets and their variants, or ""."""
     if not protocol.compare_presets:
         return ""
-    presets = ", ".join(f"`{p}`" for p in protocol.compare_presets)
+    presets = ", ".join(compared_name(protocol, p) for p in protocol.compare_presets)
     return f", compared with {presets} ({', '.join(label(v) for v in protocol.compare_variants)})"
+
+
+def compared_name(protocol: Protocol, preset: str) -> str:
+    """A compared preset in backticks, with the settings `compare_only` limits it to."""
+    settings = dict(protocol.compare_only).get(preset)
+    if settings is None:
+        return f"`{preset}`"
+    return f"`{preset}` (on {', '.join(f'`{name}`' for name in settings)})"
 
 
 def how_produced(report: Report) -> str:
