@@ -25,10 +25,6 @@ QUICK_MIN_MINOR = 2
 # on every setting, and the paper's literal model beside it on the main settings.
 REPRODUCTION_PRESET = "agent"
 REPRODUCTION_COMPARED = "paper@main"
-# --quick is a smoke test of the machinery: the paper preset alone, since the agent preset's
-# first highway fit (scikit-learn's grid search, before epoch 1) costs ~30-60 s per run
-# whatever the data size, measured, against ~4 s for a whole quick paper run's training
-QUICK_PRESET = "paper"
 
 
 class ReproductionError(ValueError):

@@ -363,11 +363,11 @@ class HighwayMaps:
             torch.ones_like(theta[..., 0]),
         )
 
-    def _fit_highway(self, steps: _Steps, roles: Tensor | None) -> None:
+    def _fit_highway(self, steps: _Steps, roles: Tensor | None, fit_maps: bool = True) -> None:
         """Fit the highway (predictor.highway) on the agents present over the whole history
         window and future: the map of all scenes, and one map without each cross-fitting fold
         (scene b belongs to fold b mod CROSS_FIT_FOLDS); roles (B, N) pick the map (one map if
-        the model reads no roles)."""
+        the model reads no roles). fit_maps=False: only the attended edges' statistics."""
         rotation = steps.frame[1]
         t_obs = steps.num_observed
         features, usable = history_features(
@@ -390,6 +390,8 @@ class HighwayMaps:
             if len(edges) >= 2:
                 self.attended_mean.copy_(edges.mean(0))
                 self.attended_std.copy_(edges.std(0).clamp(min=MIN_STAT_STD))
+        if not fit_maps:
+            return
         horizon = self.config.highway_horizon
         maps = fit_cross_fitted(features, offsets, usable & complete, slots, self.num_maps, horizon)
         buffers = ("highway_weight", "highway_bias", "highway_fold_weight", "highway_fold_bias")

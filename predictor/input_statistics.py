@@ -46,7 +46,12 @@ class InputStatistics:
 
     @torch.no_grad()
     def fit_normalisation(
-        self, positions: Tensor, valid: Tensor, num_observed: int, roles: Tensor | None = None
+        self,
+        positions: Tensor,
+        valid: Tensor,
+        num_observed: int,
+        roles: Tensor | None = None,
+        fit_maps: bool = True,
     ) -> None:
         """Set the input means/stds (if `standardise`) and the offset scale (if
         offset_scale="deviation") from (training) scenes (B, T, N, 2), (B, T, N).
@@ -59,7 +64,8 @@ class InputStatistics:
         (rollout_prior "anchored") is the RMS per axis of the agent-frame velocity change since
         the last observed step, v^t - v^{T_obs-1}, over the predicted steps. With
         `highway_steps` the highway's maps are fitted too (`_fit_highway`; roles (B, N) choose
-        the map where the model reads roles).
+        the map where the model reads roles); fit_maps=False leaves its maps (not its edge
+        statistics) to `refit_attended`, as training does, which replaces them unread.
         """
         if self.config.frame != "agent":
             raise ValueError("fit_normalisation needs frame='agent'")
@@ -95,7 +101,7 @@ class InputStatistics:
             local = rotate(change, steps.frame[1], inverse=True)[ok]  # (K, 2)
             self.anchor_std.copy_(local.pow(2).mean(0).sqrt().clamp(min=MIN_STAT_STD))
         if self.config.highway_steps:
-            self._fit_highway(steps, roles)
+            self._fit_highway(steps, roles, fit_maps)
 
     def _default_normalisation(self) -> None:
         """Unfitted scales: the car constants of the paper model (used when not standardise)."""

@@ -88,8 +88,15 @@ def build_state(
     model = SmoothAttentionPredictor(model_cfg)
     if model_cfg.frame == "agent":  # input/output scales from the training split (checkpointed)
         scenes = train_set.all()
+        # with attended_refit the first epoch's refit_attended, before any step, replaces the
+        # highway's maps unread (the highway is read only in the rollout), so they are not
+        # fitted here: that fit (a grid search per map) took 50-70 s a run (benchmarks/README.md)
         model.fit_normalisation(
-            scenes.positions, scenes.valid, train_set.meta.num_observed, scenes.roles
+            scenes.positions,
+            scenes.valid,
+            train_set.meta.num_observed,
+            scenes.roles,
+            fit_maps=not model_cfg.attended_refit,
         )
     optimizer = make_optimizer(model, train_cfg)
     refit_scenes = train_set.all() if model_cfg.attended_refit else None

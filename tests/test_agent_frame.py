@@ -287,6 +287,35 @@ def test_agent_preset_run_keeps_its_fitted_scales_and_is_deterministic(dataset_f
     assert first["diagnostics"]["one_step"]["all_agents"]["model_m"] is not None
 
 
+def test_training_skips_the_highway_fit_that_the_first_refit_replaces(
+    dataset_file, tmp_path, monkeypatch
+):
+    """With attended_refit, training leaves the highway's maps to the first epoch's refit
+    (fit_maps=False): the run is the same, bit for bit, as one that fits them first."""
+    from predictor.training import train
+
+    model_cfg, train_cfg = make_configs("ours", SMALL, preset="agent", epochs=2)
+    train(dataset_file, model_cfg, train_cfg, tmp_path / "skipped", progress=False)
+    fit_normalisation = SmoothAttentionPredictor.fit_normalisation
+    calls = []
+
+    def fit_every_map(self, *args, fit_maps: bool = True):
+        calls.append(fit_maps)
+        fit_normalisation(self, *args, fit_maps=True)
+
+    monkeypatch.setattr(SmoothAttentionPredictor, "fit_normalisation", fit_every_map)
+    train(dataset_file, model_cfg, train_cfg, tmp_path / "fitted", progress=False)
+    assert calls == [False]  # training asked to skip the maps; this run fitted them anyway
+    for name in ("best.pt", "last.pt"):
+        skipped, fitted = (
+            torch.load(tmp_path / run / name, weights_only=True)["model_state"]
+            for run in ("skipped", "fitted")
+        )
+        assert skipped.keys() == fitted.keys()
+        for key in skipped:
+            assert torch.equal(skipped[key], fitted[key]), key
+
+
 def test_weight_decay_uses_decoupled_adamw_and_zero_keeps_adam():
     """One AdamW step with zero gradients shrinks every weight by exactly lr * weight_decay."""
     from predictor.run_state import make_optimizer

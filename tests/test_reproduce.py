@@ -30,11 +30,7 @@ BASELINE_VARIANTS = ("const_vel", "ridge", "ridge_labelled", "ridge_labelled_rel
 VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct", *BASELINE_VARIANTS)
 # the baselines are evaluated once, not trained per seed
 NOTES = "The lead's notes.\n\n- verbatim *markdown* line\n"
-REDONE = ("nonsmooth", 1)
-# a compared preset on the main settings only (S-Attn: the agent preset's without a highway,
-# whose first fit would cost ~30 s a run)
-COMPARE_ARGS = ("--compare-presets", "agent@main", "--compare-variants", "s_attn")
-COMPARED = "s_attn@agent"  # this run's eval.json is deleted before the second run
+REDONE = ("nonsmooth", 1)  # this run's eval.json is deleted before the second run
 
 
 def run_reproduce(*args: str) -> tuple[subprocess.CompletedProcess, float]:
@@ -57,7 +53,7 @@ def quick(tmp_path_factory) -> dict:
     one run's eval.json."""
     root = tmp_path_factory.mktemp("reproduce")
     cache, results = root / "cache", root / "report" / "RESULTS.md"
-    args = ("--quick", "--out-dir", str(cache), "--report", str(results), *COMPARE_ARGS)
+    args = ("--quick", "--out-dir", str(cache), "--report", str(results))
     first, first_s = run_reproduce(*args)
     assert first.returncode == 0, first.stderr[-2000:]
     markdown_first = results.read_text()
@@ -115,19 +111,23 @@ def test_quick_run_writes_markdown_with_tables(quick):
         "Quick smoke run",
     ):
         assert section in text
+    lines = text.splitlines()
     for setting in SETTINGS:
         assert f"### `{setting}`" in text
-        assert sum(line.startswith(f"| `{setting}` | Ours") for line in text.splitlines()) == 4
-    assert text.count("| Ours | ") == 2 * len(SETTINGS)  # main-car and all-agent tables
-    for case in ("major", "minor"):  # the bar: Ours against the oracle ridges, each case
-        assert sum(
-            line.startswith(f"| `{s}` | {case} | ") for s in SETTINGS for line in text.splitlines()
-        ) == len(SETTINGS)
+        ours = [line for line in lines if line.startswith(f"| `{setting}` | Ours ")]
+        bar = [line for line in ours if "| major |" in line or "| minor |" in line]
+        assert len(ours) - len(bar) == 4  # the claims table's rows
+    # main-car and all-agent tables
+    assert sum(line.startswith("| Ours | ") for line in lines) == 2 * len(SETTINGS)
+    for case in ("major", "minor"):  # the bar: Ours (and Ours [paper]) against the oracle ridges
+        for model, settings in (("Ours", SETTINGS), ("Ours [paper]", ("dm_r0.3", "hc_stop"))):
+            rows = [f"| `{s}` | {model} | {case} | " for s in settings]
+            assert sum(line.startswith(tuple(rows)) for line in text.splitlines()) == len(rows)
     assert text.count("| Ours vs S-Attn | ") == len(SETTINGS)
     assert "cores" in text and "torch" in text and "--quick" in text
-    assert "compared with `agent` (on `dm_r0.3`, `hc_stop`) (S-Attn)" in text
+    assert "compared with `paper` (on `dm_r0.3`, `hc_stop`) (Ours)" in text
     assert "## Presets side by side" in text
-    assert sum(line.startswith("| S-Attn [agent] | ") for line in text.splitlines()) == 2
+    assert sum(line.startswith("| Ours [paper] | ") for line in text.splitlines()) == 2
     assert "15/30 = 0.5" in text
 
 
@@ -169,17 +169,17 @@ def test_results_json_has_every_setting_variant_and_seed(quick):
     assert [s["name"] for s in document["protocol"]["settings"]] == list(SETTINGS)
     assert tuple(document["protocol"]["variants"]) == VARIANTS
     assert document["protocol"]["quick"] and document["protocol"]["epochs"] == 1
-    assert document["protocol"]["preset"] == "paper"  # --quick's default
-    assert document["protocol"]["compare_presets"] == ["agent"]
+    assert document["protocol"]["preset"] == "agent"  # the default: this project's model
+    assert document["protocol"]["compare_presets"] == ["paper"]  # beside it on main
     runs = document["runs"]
     assert len(runs) == len(SETTINGS) * (5 * 2 + len(BASELINE_VARIANTS)) + 2 * 2
     for setting in SETTINGS:
-        agent = [COMPARED] if setting in ("dm_r0.3", "hc_stop") else []  # agent@main only
-        assert set(document["aggregates"][setting]) == {*VARIANTS, *agent}
+        paper = ["ours@paper"] if setting in ("dm_r0.3", "hc_stop") else []  # main only
+        assert set(document["aggregates"][setting]) == {*VARIANTS, *paper}
         seeds = sorted(
-            r["seed"] for r in runs if (r["setting"], r["variant"]) == (setting, COMPARED)
+            r["seed"] for r in runs if (r["setting"], r["variant"]) == (setting, "ours@paper")
         )
-        assert seeds == ([0, 1] if agent else [])
+        assert seeds == ([0, 1] if paper else [])
         for variant in VARIANTS:
             seeds = sorted(
                 r["seed"] for r in runs if r["setting"] == setting and r["variant"] == variant
@@ -280,9 +280,10 @@ def test_no_arguments_mean_the_agent_preset_with_the_paper_preset_on_the_main_se
     assert {s.name: default.presets_compared_on(s.name) for s in default.settings} == {
         name: ("paper",) if name in ("dm_r0.3", "hc_stop") else () for name in SETTINGS
     }
-    for args in (["--preset", "paper"], ["--quick"]):
-        paper = reproduce.protocol_from_args(reproduce.parse_args(args))
-        assert paper.preset == "paper" and paper.compare_presets == ()
+    paper = reproduce.protocol_from_args(reproduce.parse_args(["--preset", "paper"]))
+    assert paper.preset == "paper" and paper.compare_presets == ()
+    quick = reproduce.protocol_from_args(reproduce.parse_args(["--quick"]))
+    assert (quick.preset, quick.compare_presets, quick.seeds) == ("agent", ("paper",), 2)
     none = reproduce.protocol_from_args(reproduce.parse_args(["--compare-presets", ""]))
     assert none.compare_presets == ()
     both = reproduce.parse_args(["--compare-presets", "agent_zero_cv, paper@hc_go"])
@@ -427,7 +428,10 @@ def test_cached_results_are_checked_before_use(tmp_path):
     assert result_store.read_eval(job) == {"variant": "ours", "seed": 0}
 
 
-STORE_ARGS = ("--quick", "--settings", "main", "--variants", "ours,const_vel", "--seeds", "1")
+STORE_ARGS = (
+    *("--quick", "--settings", "main", "--variants", "ours,const_vel", "--seeds", "1"),
+    *("--compare-presets", ""),  # no compared preset: the store's runs are these four
+)
 
 
 def test_results_store_rebuilds_the_report_in_a_fresh_cache_and_budget_leaves_runs(tmp_path):

@@ -3,7 +3,7 @@
 Examples:
     python tools/reproduce.py                      # the full protocol (days; see below)
     python tools/reproduce.py --settings main --seeds 3 --jobs 2
-    python tools/reproduce.py --quick              # tiny smoke version, paper preset (~1-2 min)
+    python tools/reproduce.py --quick              # tiny smoke version of everything (~2-4 min)
     python tools/reproduce.py --settings main --seeds 5 --report docs/RESULTS.md --overwrite
     python tools/reproduce.py --settings main --backend ray --address HEAD_IP:6379
     python tools/reproduce.py --compare-presets agent_zero_cv,paper@main --seeds 5
@@ -15,7 +15,7 @@ replaces the repository's published one.
 Protocol (paper, Sec. V; pipeline/reproduction.py): for every setting one dataset is generated
 with dataset seed 0 (so all variants and seeds see the same trajectories); each trained variant
 (`ours`, `s_attn`, `nonsmooth`, `average`, `correct`) is trained under `--preset` (default
-`agent`, this project's model; `paper`, the paper's literal one, with --quick) with training
+`agent`, this project's model; `paper` is the paper's literal one) with training
 seeds 0..k-1 (`--seeds k`, 10 in the paper) for `--epochs` (200) and evaluated from its best.pt
 (lowest validation ADE of the main agents) on the test split; the baselines (`const_vel`,
 `ridge` and the oracle ridges `ridge_labelled` and `ridge_labelled_relation`, the bar the report
@@ -73,12 +73,13 @@ Expected wall time, measured on the 2-core AMD EPYC development VM (1 torch thre
 jobs sharing the two cores; epoch times include validation; medians of the committed runs'
 train_seconds, 90 epochs, results/): under the agent preset the variants with the sequence loss
 (ours, nonsmooth, average, correct) cost ~0.14 s per training scene and epoch (26-35 runs each;
-fastest ~0.08-0.12 s), s_attn ~0.045 s; the paper preset's Ours ~0.29 s (4 runs, 3 jobs on 2
-cores). A 200-epoch Ours run thus takes ~25 min on a ratio-0.3 setting (52 training scenes) and
-~50 min on dm_30+100 (104). The seven settings hold 378 training scenes in all, so the full
-protocol (350 runs of the agent preset, 20 of the paper preset) is ~145 job-hours: ~3 days with
---jobs 2 here, which is why the published report (docs/RESULTS.md) has 5 seeds and 90 epochs,
-gathered over several sittings through the results store. `--quick` takes ~1-2 min.
+fastest ~0.08-0.12 s; each also spent ~1 min on a first highway fit that training no longer
+makes), s_attn ~0.045 s; the paper preset's Ours ~0.29 s (4 runs, 3 jobs on 2 cores). A
+200-epoch Ours run thus takes ~25 min on a ratio-0.3 setting (52 training scenes) and ~50 min on
+dm_30+100 (104). The seven settings hold 378 training scenes in all, so the full protocol (350
+runs of the agent preset, 20 of the paper preset) is ~145 job-hours: ~3 days with --jobs 2 here,
+which is why the published report (docs/RESULTS.md) has 5 seeds and 90 epochs, gathered over
+several sittings through the results store. `--quick` takes ~1-2 min.
 """
 
 from __future__ import annotations
@@ -100,7 +101,6 @@ from pipeline.protocol import (
     QUICK_EPOCHS,
     QUICK_MAX_MAJOR,
     QUICK_NUM_TEST,
-    QUICK_PRESET,
     QUICK_SEEDS,
     REPRODUCTION_COMPARED,
     REPRODUCTION_PRESET,
@@ -147,8 +147,7 @@ def parse_args(argv: list[str] | None = None):
         default=None,
         choices=sorted(PRESETS),
         help="model and training configuration of the trained variants (predictor/presets.py "
-        f"PRESETS; default {REPRODUCTION_PRESET}, --quick {QUICK_PRESET}; paper = the paper's "
-        "literal version)",
+        f"PRESETS; default {REPRODUCTION_PRESET}; paper = the paper's literal version)",
     )
     parser.add_argument(
         "--compare-presets",
@@ -184,7 +183,7 @@ def parse_args(argv: list[str] | None = None):
         action="store_true",
         help=f"tiny smoke version: {QUICK_EPOCHS} epoch(s), {QUICK_SEEDS} seeds, "
         f"{QUICK_NUM_TEST} test scenes per case, at most "
-        f"{QUICK_MAX_MAJOR} major trajectories, preset {QUICK_PRESET}",
+        f"{QUICK_MAX_MAJOR} major trajectories",
     )
     parser.add_argument(
         "--out-dir",
@@ -228,7 +227,7 @@ def parse_args(argv: list[str] | None = None):
 
 def protocol_from_args(args) -> Protocol:
     """Validate the arguments (exit 2 with one line on a bad value) and build the protocol."""
-    preset = args.preset or (QUICK_PRESET if args.quick else REPRODUCTION_PRESET)
+    preset = args.preset or REPRODUCTION_PRESET
     try:
         names = pick(args.settings, tuple(SETTING_BY_NAME), GROUPS, "setting")
         variants = pick(args.variants, ALL_VARIANTS, {"all": ALL_VARIANTS}, "variant")
