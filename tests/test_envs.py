@@ -33,21 +33,24 @@ from scenarios import (
     DoubleMerge,
     DoubleMergeConfig,
     HaltingCar,
+    LateBrakeHaltingCar,
     ReactiveDoubleMerge,
     ReactiveHaltingCar,
     double_merge_v0,
     double_merge_v1,
     halting_car_v0,
     halting_car_v1,
+    halting_car_v2,
     rollout,
 )
 
-MODULES = [double_merge_v0, double_merge_v1, halting_car_v0, halting_car_v1]
+MODULES = [double_merge_v0, double_merge_v1, halting_car_v0, halting_car_v1, halting_car_v2]
 SCENARIO_OF = {
     double_merge_v0: DoubleMerge,
     double_merge_v1: ReactiveDoubleMerge,
     halting_car_v0: HaltingCar,
     halting_car_v1: ReactiveHaltingCar,
+    halting_car_v2: LateBrakeHaltingCar,
 }
 CASES = [(module, case) for module in MODULES for case in SCENARIO_OF[module].case_names]
 IDS = [f"{module.__name__.split('.')[-1]}-{case}" for module, case in CASES]

@@ -20,6 +20,8 @@ from scenarios import (
     Episode,
     HaltingCar,
     HaltingCarConfig,
+    LateBrakeHaltingCar,
+    LateBrakeHaltingCarConfig,
     ReactiveDoubleMerge,
     ReactiveDoubleMergeConfig,
     ReactiveHaltingCar,
@@ -50,7 +52,13 @@ def plan_of(name: str, seed: int, case: str):
 
 # --- registry and configuration ---------------------------------------------------------------
 def test_registry_and_class_attributes() -> None:
-    assert set(SCENARIOS) == {"double_merge", "double_merge_v1", "halting_car", "halting_car_v1"}
+    assert set(SCENARIOS) == {
+        "double_merge",
+        "double_merge_v1",
+        "halting_car",
+        "halting_car_v1",
+        "halting_car_v2",
+    }
     assert DoubleMerge.case_names == ("major", "minor")
     assert HaltingCar.case_names == ("stop", "go")
     for name, cls in SCENARIOS.items():
@@ -396,6 +404,37 @@ def test_halting_car_v1_follower_reacts_to_the_leader_exactly_one_delay_later(se
     )
     assert braked.actions[k + 1 + delay, GREEN, 1] < base.actions[k + 1 + delay, GREEN, 1]
     assert not braked.collided
+
+
+# --- Halting Car v2 -------------------------------------------------------------------------------
+def test_halting_car_v2_only_the_leader_shows_the_stop_before_prediction() -> None:
+    """200 seeds: the leader's observed states differ between the cases (it brakes for 1-3
+    observed steps), the follower's observed states and actions are the same in both (its own
+    history cannot tell the case), and it then brakes, with the v1 safety margin."""
+    config = LateBrakeHaltingCarConfig()
+    observed = config.num_observed
+    for stop, go in zip(episodes("halting_car_v2", "stop"), episodes("halting_car_v2", "go")):
+        leader_stop, leader_go = stop.states[:observed, BROWN, 3], go.states[:observed, BROWN, 3]
+        slower = np.nonzero(leader_stop < leader_go - 1e-6)[0]
+        assert 1 <= len(slower) <= 3 and slower[-1] == observed - 1
+        np.testing.assert_array_equal(stop.states[:observed, GREEN], go.states[:observed, GREEN])
+        np.testing.assert_array_equal(stop.actions[:observed, GREEN], go.actions[:observed, GREEN])
+        assert stop.actions[observed:, GREEN, 1].min() < go.actions[observed:, GREEN, 1].min() - 1
+        gap = stop.states[:, BROWN, 0] - stop.states[:, GREEN, 0] - config.car_length_m
+        assert gap.min() > 1.0
+        assert abs(stop.states[-1, BROWN, 3] - stop.states[0, BROWN, 3]) < 0.05  # resumed
+
+
+def test_halting_car_v2_plan_is_v1_plan_with_v2_ranges() -> None:
+    """Same draws as v1 (the fixed ranges still take theirs): the scene and the cruise agree,
+    the brake onset lies in 2.4-3.0 s, the delay is 3 steps, stop and resume are fixed."""
+    for seed in range(20):
+        v1, v2 = plan_of("halting_car_v1", seed, "stop"), plan_of("halting_car_v2", seed, "stop")
+        np.testing.assert_array_equal(v1.initial_state, v2.initial_state)
+        assert v1.time_headway_s == v2.time_headway_s
+        assert 2.4 <= v2.brake_start_s <= 3.0 and v2.reaction_steps == 3
+        assert (v2.stop_duration_s, v2.resume_accel_mps2) == (1.5, 2.5)
+    assert isinstance(SCENARIOS["halting_car_v2"](), LateBrakeHaltingCar)
 
 
 # --- causal structure ---------------------------------------------------------------------------
