@@ -13,7 +13,10 @@ from agent-centric features of its observed history:
   saying the neighbour is present. `"nearest"` takes the `num_neighbours` closest agents at the
   last observed step; `"labelled"` takes the agent named by the ground-truth attention label (an
   oracle: the label is read from the whole scene, future included); `"random"` takes one other
-  agent drawn at random (seeded), the control for `"labelled"`.
+  agent drawn at random (seeded), the control for `"labelled"`; `"shuffled"` takes the labelled
+  agent's features of another scene (a seeded derangement of the scenes), a null control: the
+  same features, with the same distribution, that carry nothing about this scene, so what they
+  change is the cost of fitting features that carry nothing.
 
 The *interaction gain* of a dataset is how much the labelled neighbour improves on the agent's own
 history (`ridge` vs `ridge_labelled`, against `ridge_random`): a scenario whose labels matter
@@ -56,7 +59,7 @@ RIDGE_BASELINES = {  # baseline name -> RidgeConfig fields
     "ridge_random": {"neighbours": "random"},
     "ridge_labelled_relation": {"neighbours": "labelled", "groups": "relation"},
 }
-NEIGHBOUR_MODES = ("none", "nearest", "labelled", "random")
+NEIGHBOUR_MODES = ("none", "nearest", "labelled", "random", "shuffled")
 # one regression per agent role; or, for the agents that carry an attention label, one per
 # relation to the labelled agent (RELATION_AHEAD / RELATION_BEHIND), whatever their role; or one
 # per role and scene case (an oracle gate: the case is read from the data, as the label is)
@@ -102,7 +105,7 @@ class RidgeConfig:
     num_neighbours: int = 1  # how many agents "nearest" takes
     alphas: tuple[float, ...] = tuple(float(a) for a in np.logspace(-3, 4, 15))  # CV grid
     folds: int = 5  # grouped cross-validation folds (fewer if there are fewer training scenes)
-    seed: int = 0  # of the "random" neighbour draw
+    seed: int = 0  # of the "random" neighbour draw and the "shuffled" derangement
     # one of GROUPINGS: "role" fits one regression per role; "relation" fits the labelled
     # agents' regressions per relation to their labelled agent instead (`relation_groups`). On
     # Double Merge a colour is the rear car in one case and the front car in the other, and
@@ -335,7 +338,10 @@ class RidgeBaseline:
         n, num_agents = present.shape
         parts = [velocity.reshape(n, num_agents, -1), acceleration.reshape(n, num_agents, -1)]
         for other in self._neighbours(positions[:, t0], present, attention):
-            parts.append(self._neighbour_features(track, present, other, frames))
+            feats = self._neighbour_features(track, present, other, frames)
+            if self.config.neighbours == "shuffled":
+                feats = feats[scene_derangement(n, self.config.seed)]
+            parts.append(feats)
         return np.concatenate(parts, axis=-1), present, frames
 
     def _neighbours(
@@ -345,7 +351,7 @@ class RidgeBaseline:
         mode = self.config.neighbours
         if mode == "none":
             return []
-        if mode == "labelled":
+        if mode in ("labelled", "shuffled"):
             return [scene_labels(attention)]
         num_agents = last.shape[1]
         unusable = ~present[:, None, :] | np.eye(num_agents, dtype=bool)[None]  # (n, N, N)
@@ -419,6 +425,17 @@ def relation_groups(
     ahead = frames.to_local(theirs)[..., 0] > 0  # (n, N)
     relation = np.where(ahead, RELATION_AHEAD, RELATION_BEHIND)
     return np.where(labelled, relation, roles.astype(np.int64))
+
+
+def scene_derangement(n: int, seed: int) -> np.ndarray:
+    """A seeded permutation of n >= 2 scenes that moves every scene: scene i takes the
+    features of scene `result[i]` != i (one random cycle through all of them)."""
+    if n < 2:
+        raise ValueError(f"a derangement needs at least two scenes, got {n}")
+    order = np.random.default_rng(seed).permutation(n)
+    result = np.empty(n, dtype=np.int64)
+    result[order] = np.roll(order, -1)
+    return result
 
 
 def scale_columns_from(x: np.ndarray, start: int, scale: float) -> np.ndarray:

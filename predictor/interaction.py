@@ -7,7 +7,9 @@ of its scene), the test ADE of ridge regressions fitted on the training split wi
 
 - `own`: the agent's own history only,
 - `labelled`: plus the history of the agent its label names (oracle),
-- `random`: plus the history of a random other agent (the control),
+- `random`: plus the history of a random other agent (the control; with `control="shuffled"`
+  the labelled agent's history from another scene, a null control that carries nothing about
+  the scene: it measures what fitting such features costs at the file's size),
 
 per case and role. `gain` = 1 - labelled / own (how much the attended car explains); `control`
 = random / own - 1 (what any extra car does). A scenario whose labels are causal and observable
@@ -42,6 +44,7 @@ from predictor.format_reader import read_meta, read_split
 from predictor.metrics import prediction_mask
 
 MODES = ("none", "labelled", "random")  # RidgeConfig.neighbours of own, labelled, random
+CONTROLS = ("random", "shuffled")  # RidgeConfig.neighbours of the control (GainRow.random)
 PENALTIES = {"shared": (1.0,), "banded": BANDED_SCALES}  # -> RidgeConfig.neighbour_scales
 
 
@@ -54,7 +57,7 @@ class GainRow:
     agents: int  # attending (scene, agent) pairs scored
     own: float
     labelled: float
-    random: float
+    random: float  # with the control of `interaction_gain` (a random car by default)
 
     @property
     def gain(self) -> float:
@@ -73,13 +76,17 @@ def interaction_gain(
     fit_split: str = "train",
     grouping: str = "role",
     penalty: str = "shared",
+    control: str = "random",
 ) -> list[GainRow]:
     """Gain rows of every (case, role) with attending agents in `split`, ridge fitted on
-    `fit_split` with one regression per `grouping` (`RidgeConfig.groups`) and the other car's
-    features penalised as `penalty` says (`PENALTIES`). Raises ValueError if the file has no
-    attention labels in `split`, or for an unknown grouping or penalty."""
+    `fit_split` with one regression per `grouping` (`RidgeConfig.groups`), the other car's
+    features penalised as `penalty` says (`PENALTIES`), and `control` (`CONTROLS`) as the
+    control's neighbour. Raises ValueError if the file has no attention labels in `split`, or
+    for an unknown grouping, penalty or control."""
     if penalty not in PENALTIES:
         raise ValueError(f"penalty must be one of {', '.join(PENALTIES)}, got {penalty!r}")
+    if control not in CONTROLS:
+        raise ValueError(f"control must be one of {', '.join(CONTROLS)}, got {control!r}")
     meta = read_meta(data_path)
     fit, data = read_split(data_path, fit_split), read_split(data_path, split)
     attending = (data.attention >= 0).any(axis=1)  # (n, N)
@@ -89,7 +96,10 @@ def interaction_gain(
     truth = data.states[:, meta.num_observed :, :, :2]
     ade = {}
     for mode in MODES:
-        config = RidgeConfig(neighbours=mode, groups=grouping, neighbour_scales=PENALTIES[penalty])
+        neighbours = control if mode == "random" else mode
+        config = RidgeConfig(
+            neighbours=neighbours, groups=grouping, neighbour_scales=PENALTIES[penalty]
+        )
         ridge = RidgeBaseline(config).fit_set(fit, meta)
         pred = ridge.predict_set(data, meta)
         error = np.where(mask, np.linalg.norm(pred - truth, axis=-1), 0.0)  # (n, P, N)

@@ -21,6 +21,7 @@ from predictor.baselines import (
     RidgeConfig,
     constant_velocity,
     relation_groups,
+    scene_derangement,
 )
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 from predictor.interaction import interaction_gain
@@ -130,7 +131,13 @@ def decided_by_neighbour(rng: np.random.Generator, n: int):
 
 @pytest.mark.parametrize(
     ("neighbours", "informative"),
-    [("none", False), ("random", False), ("labelled", True), ("nearest", True)],
+    [
+        ("none", False),
+        ("random", False),
+        ("shuffled", False),
+        ("labelled", True),
+        ("nearest", True),
+    ],
 )
 def test_only_the_deciding_neighbour_explains_the_future(neighbours, informative):
     rng = np.random.default_rng(2)
@@ -144,6 +151,29 @@ def test_only_the_deciding_neighbour_explains_the_future(neighbours, informative
         assert error < 0.01
     else:  # the drift's sign and size are unknowable: the error stays near the drift itself
         assert error > 0.3
+
+
+def test_shuffled_neighbour_is_the_labelled_car_of_another_scene():
+    """The null control's features are the labelled ones moved by a derangement: every scene
+    gets another scene's, the same for the same seed, and the own features are untouched."""
+    order = scene_derangement(7, seed=3)
+    assert sorted(order) == list(range(7)) and (order != np.arange(7)).all()
+    assert (scene_derangement(7, seed=3) == order).all()
+    assert (scene_derangement(7, seed=4) != order).any()
+    with pytest.raises(ValueError, match="at least two scenes"):
+        scene_derangement(1, seed=0)
+
+    states, attention, roles = decided_by_neighbour(np.random.default_rng(4), 7)
+    valid = np.ones(states.shape[:3], bool)
+    labelled = fitted(states, roles, RidgeConfig(history_steps=4, neighbours="labelled"), attention)
+    shuffled_config = RidgeConfig(history_steps=4, neighbours="shuffled", seed=3)
+    shuffled = fitted(states, roles, shuffled_config, attention)
+    own = labelled.own_features
+    theirs, _, _ = labelled._features(states, valid, attention)
+    moved, _, _ = shuffled._features(states, valid, attention)
+    np.testing.assert_array_equal(moved[:, :, :own], theirs[:, :, :own])
+    np.testing.assert_array_equal(moved[:, :, own:], theirs[order, :, own:])
+    assert not np.array_equal(moved[:, :, own:], theirs[:, :, own:])
 
 
 def test_banded_penalty_can_drop_a_neighbour_and_keeps_a_deciding_one():
@@ -343,6 +373,10 @@ def test_interaction_gain_finds_the_deciding_car_and_the_tool_prints_it(tmp_path
 
     (banded,) = interaction_gain(path, penalty="banded")
     assert banded.own == row.own and banded.gain > 0.95
+    (null,) = interaction_gain(path, control="shuffled")  # the label of another scene
+    assert (null.own, null.labelled) == (row.own, row.labelled) and abs(null.control) < 0.2
+    with pytest.raises(ValueError, match="control must be one of"):
+        interaction_gain(path, control="psychic")
     with pytest.raises(ValueError, match="penalty must be one of shared, banded"):
         interaction_gain(path, penalty="lasso")
     tool = [sys.executable, str(REPO_ROOT / "tools" / "inspect_data.py"), path]

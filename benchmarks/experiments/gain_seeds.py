@@ -1,7 +1,8 @@
 """Experiment (issue 11): the interaction gain at the paper's size over many dataset seeds.
 
 Usage: python benchmarks/experiments/gain_seeds.py [--seeds 10] [--num-major 50] [--num-minor 15]
-       [--penalty shared|banded] [--scenarios double_merge_v1,halting_car_v1]
+       [--penalty shared|banded] [--control random|shuffled]
+       [--scenarios double_merge_v1,halting_car_v1]
 
 For each scenario (default the v1 ones) and dataset seed 0 .. seeds-1, generates a file of the
 given size (100 test trajectories per case) in a temporary folder and measures
@@ -10,7 +11,9 @@ labelled car. Prints, per scenario,
 grouping and case, the gain and control over the seeds' rows (minimum, median, maximum) and
 pooled (ADE sums over all rows), and how many rows meet issue 11's bounds (gain >= 30 %,
 control within 3 %); `--penalty banded` gives the other car's features a penalty of their own
-(`predictor.interaction`). Not run by `make bench`; docs/scenarios.md has the figures.
+(`predictor.interaction`); `--control shuffled` replaces the random car by the labelled car of
+another scene, a null control whose spread is the probe's own noise at this size. Not run by
+`make bench`; docs/scenarios.md has the figures.
 The last line of stdout is one JSON object.
 """
 
@@ -25,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.generation import GenerateConfig, generate_dataset
-from predictor.interaction import PENALTIES, GainRow, interaction_gain
+from predictor.interaction import CONTROLS, PENALTIES, GainRow, interaction_gain
 
 SCENARIOS = ("double_merge_v1", "halting_car_v1")  # the default of --scenarios
 GROUPINGS = ("role", "relation")  # the groupings docs/scenarios.md reports
@@ -64,6 +67,13 @@ def main() -> None:
         help="ridge penalty of the other car's features (predictor.interaction; default shared)",
     )
     parser.add_argument(
+        "--control",
+        choices=CONTROLS,
+        default="random",
+        help="the control's neighbour: a random car, or the labelled car of another scene "
+        "(predictor.interaction; default random)",
+    )
+    parser.add_argument(
         "--scenarios",
         default=",".join(SCENARIOS),
         help=f"comma-separated registered scenarios (default {','.join(SCENARIOS)})",
@@ -83,7 +93,9 @@ def main() -> None:
                 path = Path(folder) / f"{scenario}_{seed}.h5"
                 generate_dataset(config, path, workers=1, progress=False)
                 for grouping in GROUPINGS:
-                    for row in interaction_gain(path, grouping=grouping, penalty=args.penalty):
+                    for row in interaction_gain(
+                        path, grouping=grouping, penalty=args.penalty, control=args.control
+                    ):
                         rows[(scenario, grouping, row.case)].append(row)
     results = []
     for (scenario, grouping, case), found in rows.items():
@@ -98,7 +110,8 @@ def main() -> None:
             f"rows gain >= 30 % {figures['gains_over_30pct']}, control within 3 % "
             f"{figures['controls_within_3pct']}"
         )
-    print(json.dumps({"seeds": args.seeds, "penalty": args.penalty, "results": results}))
+    summary_line = {"seeds": args.seeds, "penalty": args.penalty, "control": args.control}
+    print(json.dumps({**summary_line, "results": results}))
 
 
 if __name__ == "__main__":
