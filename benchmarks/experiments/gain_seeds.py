@@ -23,6 +23,7 @@ import argparse
 import json
 import tempfile
 from collections import defaultdict
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +34,20 @@ from predictor.interaction import CONTROLS, PENALTIES, GainRow, interaction_gain
 SCENARIOS = ("double_merge_v1", "halting_car_v1")  # the default of --scenarios
 GROUPINGS = ("role", "relation")  # the groupings docs/scenarios.md reports
 GAIN_BOUND, CONTROL_BOUND = 0.30, 0.03  # issue 11: gain >= 30 %, random car within 3 %
+
+
+def seed_files(
+    scenario: str, seeds: int, num_major: int, num_minor: int, folder: str | Path
+) -> Iterator[Path]:
+    """Generate one file of `scenario` per dataset seed 0 .. seeds-1 in `folder` (100 test
+    trajectories per case) and yield each path once it is written."""
+    for seed in range(seeds):
+        config = GenerateConfig.for_scenario(
+            scenario, num_major=num_major, num_minor=num_minor, num_test=100, seed=seed
+        )
+        path = Path(folder) / f"{scenario}_{seed}.h5"
+        generate_dataset(config, path, workers=1, progress=False)
+        yield path
 
 
 def summary(rows: list[GainRow]) -> dict:
@@ -82,16 +97,7 @@ def main() -> None:
     rows: dict[tuple[str, str, str], list[GainRow]] = defaultdict(list)
     with tempfile.TemporaryDirectory() as folder:
         for scenario in args.scenarios.split(","):
-            for seed in range(args.seeds):
-                config = GenerateConfig.for_scenario(
-                    scenario,
-                    num_major=args.num_major,
-                    num_minor=args.num_minor,
-                    num_test=100,
-                    seed=seed,
-                )
-                path = Path(folder) / f"{scenario}_{seed}.h5"
-                generate_dataset(config, path, workers=1, progress=False)
+            for path in seed_files(scenario, args.seeds, args.num_major, args.num_minor, folder):
                 for grouping in GROUPINGS:
                     for row in interaction_gain(
                         path, grouping=grouping, penalty=args.penalty, control=args.control

@@ -40,12 +40,11 @@ import argparse
 import dataclasses
 import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
+from gain_seeds import seed_files
 
 import scenarios
-from pipeline.generation import GenerateConfig, generate_dataset
 from predictor.interaction import interaction_gain
 from scenarios.halting_car_late import LateBrakeHaltingCarConfig
 from scenarios.halting_car_reactive import ReactiveHaltingCar, ReactiveHaltingCarConfig
@@ -106,16 +105,8 @@ def main() -> None:
     rows: dict[tuple[str, str], list] = {}
     started = time.time()
     with tempfile.TemporaryDirectory() as folder:
-        for seed in range(args.seeds):
-            config = GenerateConfig.for_scenario(
-                "halting_car_v1",
-                num_major=args.num_major,
-                num_minor=args.num_minor,
-                num_test=100,
-                seed=seed,
-            )
-            path = Path(folder) / f"{seed}.h5"
-            generate_dataset(config, path, workers=1, progress=False)
+        files = seed_files("halting_car_v1", args.seeds, args.num_major, args.num_minor, folder)
+        for path in files:
             for penalty in PENALTIES:
                 for row in interaction_gain(path, grouping=args.grouping, penalty=penalty):
                     rows.setdefault((penalty, row.case), []).append(row)
