@@ -121,16 +121,16 @@ def interaction_gain(
     return rows
 
 
-def format_gain_table(rows: list[GainRow]) -> str:
-    """Plain-text table of the rows."""
+def format_gain_table(rows: list[GainRow], control: str = "random") -> str:
+    """Plain-text table of the rows, whose control was `control` (`CONTROLS`)."""
     header = (
         f"{'case':<10}{'role':<14}{'agents':>7}{'own [m]':>10}{'+label [m]':>12}"
-        f"{'+random [m]':>13}{'gain':>8}{'control':>9}"
+        f"{f'+{control} [m]':>15}{'gain':>8}{'control':>9}"
     )
     lines = [header, "-" * len(header)]
     for row in rows:
         lines.append(
             f"{row.case:<10}{row.role:<14}{row.agents:>7}{row.own:>10.3f}{row.labelled:>12.3f}"
-            f"{row.random:>13.3f}{row.gain:>8.0%}{row.control:>+9.1%}"
+            f"{row.random:>15.3f}{row.gain:>8.0%}{row.control:>+9.1%}"
         )
     return "\n".join(lines)

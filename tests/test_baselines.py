@@ -388,6 +388,14 @@ def test_interaction_gain_finds_the_deciding_car_and_the_tool_prints_it(tmp_path
     assert float(done.stdout.strip().splitlines()[-1].split()[5]) == pytest.approx(
         banded.random, abs=5e-4
     )
+    shuffled = subprocess.run(
+        [*tool, "--interaction-gain", "--gain-control", "shuffled"],
+        capture_output=True, text=True, env=tool_env(), timeout=120,
+    )  # fmt: skip
+    assert shuffled.returncode == 0, shuffled.stderr
+    header, _, last = shuffled.stdout.strip().splitlines()[-3:]
+    assert "+shuffled [m]" in header
+    assert float(last.split()[5]) == pytest.approx(null.random, abs=5e-4)
     alone = subprocess.run(
         [*tool, "--gain-penalty", "banded"], capture_output=True, text=True, env=tool_env()
     )

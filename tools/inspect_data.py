@@ -8,7 +8,9 @@ the test ADE of ridge regressions fitted on the train split on the attending car
 plus the labelled car's, plus a random car's, per case and role; --gain-groups relation fits
 the attending cars' regressions per relation to the labelled car (ahead or behind it) instead
 of per role; --gain-penalty banded gives the other car's features a ridge penalty of their own
-(chosen by cross-validation), so features that carry nothing cost no accuracy.
+(chosen by cross-validation), so features that carry nothing cost no accuracy;
+--gain-control shuffled replaces the random car by the labelled car of another scene, a null
+control whose change is what fitting features that carry nothing costs at the file's size.
 
 Exit status: 0 valid; 1 the file exists but is not a valid dataset; 2 usage error / missing file.
 """
@@ -19,7 +21,7 @@ from pipeline.cli import ArgumentParser, fail, require_file, run_main
 from predictor.baselines import GROUPINGS
 from predictor.format import FormatError
 from predictor.format_reader import read_meta, summarize
-from predictor.interaction import PENALTIES, format_gain_table, interaction_gain
+from predictor.interaction import CONTROLS, PENALTIES, format_gain_table, interaction_gain
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -45,8 +47,15 @@ def main(argv: list[str] | None = None) -> None:
         help="with --interaction-gain: one ridge penalty for all features (shared, default), "
         "or one of its own for the other car's (banded)",
     )
+    parser.add_argument(
+        "--gain-control",
+        choices=CONTROLS,
+        default=None,
+        help="with --interaction-gain: the control's car, a random other car (default) or the "
+        "labelled car of another scene (shuffled, a null control)",
+    )
     args = parser.parse_args(argv)
-    for option in ("gain_groups", "gain_penalty"):
+    for option in ("gain_groups", "gain_penalty", "gain_control"):
         if getattr(args, option) is not None and not args.interaction_gain:
             fail(f"--{option.replace('_', '-')} needs --interaction-gain")
     path = require_file(args.file)
@@ -59,12 +68,15 @@ def main(argv: list[str] | None = None) -> None:
     if args.interaction_gain:
         try:
             rows = interaction_gain(
-                path, grouping=args.gain_groups or "role", penalty=args.gain_penalty or "shared"
+                path,
+                grouping=args.gain_groups or "role",
+                penalty=args.gain_penalty or "shared",
+                control=args.gain_control or "random",
             )
         except ValueError as err:
             fail(str(err))
         print("\ninteraction gain (ridge test ADE of the attending agents, fitted on train):")
-        print(format_gain_table(rows))
+        print(format_gain_table(rows, args.gain_control or "random"))
 
 
 if __name__ == "__main__":
