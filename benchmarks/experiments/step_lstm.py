@@ -1,8 +1,13 @@
 """Experiment (issue 13, not adopted): nn.LSTM's single-step calls replaced by an LSTM step with
 a hand-derived backward, timed inside the model's training step against nn.LSTM.
 
-Usage: python benchmarks/experiments/step_lstm.py [--repeats 8]
+Usage: python benchmarks/experiments/step_lstm.py [--repeats 8] [--floor]
 (not run by `make bench`: the result was negative; benchmarks/README.md has the figures).
+
+`--floor` times, beside the other two, a third model whose three LSTMs keep only their matrix
+products (`MatmulFloorLSTM`: the same weights and shapes, no gate nonlinearities or cell): the
+products, forward and backward, are what any implementation of the same LSTM must compute, so
+its step time bounds what a faster LSTM alone could reach.
 
 First checks in float64 that `StepLSTM` equals `nn.LSTM` (outputs, and gradients with respect
 to inputs, states and weights; gradcheck of the recurrence), then times `train_step` on the
@@ -154,6 +159,28 @@ class StepLSTM(nn.LSTM):
         return out, (out, cell.t().contiguous().unsqueeze(0))
 
 
+class MatmulFloorLSTM(nn.LSTM):
+    """Not an LSTM: `nn.LSTM`'s interface and parameters, but each step computes only the
+    products gates = x_t W_ih^T + b + h_{t-1} W_hh^T and passes the first H gate columns on as
+    h_t (and c_t). Autograd then runs the backward products (dgates W_hh, dgates^T h_{t-1},
+    dgates^T x_t, dgates W_ih) and nothing else of an LSTM's. The weights are scaled by 0.1 so
+    that the linear recurrence stays small over 60 steps. For timing only (`--floor`)."""
+
+    def forward(self, x: Tensor, state: LSTMState | None = None) -> tuple[Tensor, LSTMState]:
+        hid = self.hidden_size
+        h = x.new_zeros(x.shape[1], hid) if state is None else state[0][0]
+        projected = torch.addmm(
+            self.bias_ih_l0 + self.bias_hh_l0, x.flatten(0, 1), self.weight_ih_l0.t()
+        )
+        projected = projected.view(x.shape[0], x.shape[1], 4 * hid)
+        outs = []
+        for t in range(x.shape[0]):
+            h = torch.addmm(projected[t], h, self.weight_hh_l0.t())[:, :hid]
+            outs.append(h)
+        out = torch.stack(outs)
+        return out, (out[-1:], out[-1:])
+
+
 def check_exact() -> None:
     """StepLSTM against nn.LSTM in float64 (one step from a given and from a zero state)."""
     torch.manual_seed(0)
@@ -177,17 +204,24 @@ def check_exact() -> None:
     assert torch.autograd.gradcheck(_Recurrence.apply, args)
 
 
-def swap_lstms(model: SmoothAttentionPredictor) -> None:
-    """Replace the model's three nn.LSTMs by StepLSTMs holding the same weights."""
+def swap_lstms(model: SmoothAttentionPredictor, kind: type[nn.LSTM] | None = None) -> None:
+    """Replace the model's three nn.LSTMs by `kind`s (default StepLSTM) holding the same
+    weights (MatmulFloorLSTM: scaled by 0.1)."""
+    kind = kind or StepLSTM
     for name in ("g_interact", "g_self", "g_pred"):
         old = getattr(model, name)
-        new = StepLSTM(old.input_size, old.hidden_size)
+        new = kind(old.input_size, old.hidden_size)
         new.load_state_dict(old.state_dict())
+        if kind is MatmulFloorLSTM:
+            with torch.no_grad():
+                for weight in new.parameters():
+                    weight.mul_(0.1)
         setattr(model, name, new)
 
 
-def time_preset(preset: str, repeats: int) -> dict:
-    """Seconds per training step, current (nn.LSTM) against StepLSTM, alternating."""
+def time_preset(preset: str, repeats: int, floor: bool = False) -> dict:
+    """Seconds per training step, current (nn.LSTM) against StepLSTM (and with `floor`
+    MatmulFloorLSTM), alternating."""
     batch = synthetic_batch(8, 60, 22, seed=1)
     focal = torch.zeros(8, 22, dtype=torch.bool)
     focal[:, :2] = True  # the agent preset weights the main agents' loss terms
@@ -195,11 +229,11 @@ def time_preset(preset: str, repeats: int) -> dict:
     model_cfg, train_cfg = make_configs("ours", preset=preset)
     model_cfg = resolve_roles(model_cfg, ROLE_NAMES)
     runs = []
-    for swap in (False, True):
+    for kind in (None, StepLSTM, MatmulFloorLSTM)[: 3 if floor else 2]:
         torch.manual_seed(0)
         model = SmoothAttentionPredictor(model_cfg)
-        if swap:
-            swap_lstms(model)
+        if kind is not None:
+            swap_lstms(model, kind)
         if model_cfg.frame == "agent":
             model.fit_normalisation(batch.positions, batch.valid, 15, batch.roles)
         optimizer = make_optimizer(model, train_cfg)
@@ -211,24 +245,31 @@ def time_preset(preset: str, repeats: int) -> dict:
             start = time.perf_counter()
             train_step(model, optimizer, batch, 15, train_cfg)
             times.append(time.perf_counter() - start)
-    current, new = (statistics.median(times) for _, _, times in runs)
-    return {
+    current, new, *rest = (statistics.median(times) for _, _, times in runs)
+    result = {
         "preset": preset,
         "current_step_s": round(current, 3),
         "step_lstm_step_s": round(new, 3),
         "training_speedup": round(current / new, 3),
     }
+    if rest:
+        result["matmul_floor_step_s"] = round(rest[0], 3)
+        result["floor_speedup"] = round(current / rest[0], 3)
+    return result
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=8, help="timed steps per model")
+    parser.add_argument(
+        "--floor", action="store_true", help="also time the LSTMs' matrix products alone"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     check_exact()
     results = []
     for preset in ("paper", "agent"):
-        results.append(time_preset(preset, args.repeats))
+        results.append(time_preset(preset, args.repeats, args.floor))
         print(f"{preset}: {results[-1]}", file=sys.stderr)
     print(json.dumps({"benchmark": "step_lstm", "results": results}))
 
