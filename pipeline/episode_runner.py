@@ -35,6 +35,7 @@ DEFAULT_BATCH_SCENES = 64
 
 
 _SCENARIO: Scenario | None = None  # the scenario object episodes are rolled out with
+_STOP = None  # in a pool worker, the pool's stop event (set by _init_worker); else None
 
 
 def _load_scenario(scenario_name: str) -> None:
@@ -42,8 +43,11 @@ def _load_scenario(scenario_name: str) -> None:
     _SCENARIO = SCENARIOS[scenario_name]()
 
 
-def _init_worker(scenario_name: str) -> None:
-    """Workers leave Ctrl-C to the parent (which stops the pool) and die quietly on SIGTERM."""
+def _init_worker(scenario_name: str, stop) -> None:
+    """Workers leave Ctrl-C to the parent (which stops the pool through `stop`) and die quietly
+    on SIGTERM."""
+    global _STOP
+    _STOP = stop
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _load_scenario(scenario_name)
@@ -62,9 +66,15 @@ def _batches(slots: list[Slot], batch_scenes: int) -> list[list[Slot]]:
 
 
 def _run_chunk(task: tuple[list[Slot], int]) -> list[Episode]:
-    """A pool or Ray task: roll out a chunk of slots in batches of `batch_scenes`."""
+    """A pool or Ray task: roll out a chunk of slots in batches of `batch_scenes`; in a pool
+    that is stopping, nothing (the parent uses no result then), at once or after this batch."""
     slots, batch_scenes = task
-    return [episode for batch in _batches(slots, batch_scenes) for episode in _run_batch(batch)]
+    episodes: list[Episode] = []
+    for batch in _batches(slots, batch_scenes):
+        if _STOP is not None and _STOP.is_set():
+            return []
+        episodes.extend(_run_batch(batch))
+    return episodes
 
 
 def _next_result(
@@ -110,10 +120,11 @@ def run_slots(
     """Roll out every slot, in order; the result depends on none of `workers`, `backend` and
     `batch_scenes` (episodes stepped together as one batched world; 1: one by one).
 
-    With workers > 1 the slots go to a pool in chunks, terminated on any exception
-    (KeyboardInterrupt included); with backend "ray", the chunks are Ray tasks in the running
-    Ray session (see `generate_episodes`). In this process, recorded signals are delivered
-    between batches.
+    With workers > 1 the slots go to a pool in chunks; on any exception (KeyboardInterrupt
+    included) the pool's stop event is set, so the workers end their chunks after the current
+    batch and skip the rest, and the pool is closed and joined; with backend "ray", the chunks
+    are Ray tasks in the running Ray session (see `generate_episodes`). In this process,
+    recorded signals are delivered between batches.
     """
     if batch_scenes < 1:
         raise ValueError(f"batch_scenes must be at least 1, got {batch_scenes}")
@@ -137,11 +148,22 @@ def run_slots(
             signals.check()
         return episodes
     context = multiprocessing.get_context("spawn" if sys.platform == "darwin" else "fork")
-    with context.Pool(workers, initializer=_init_worker, initargs=(scenario_name,)) as pool:
+    stop = context.Event()
+    pool = context.Pool(workers, initializer=_init_worker, initargs=(scenario_name, stop))
+    try:
         tasks = [(chunk, batch_scenes) for chunk in chunks]
         results = pool.imap(_run_chunk, tasks)  # chunksize 1: an iterator with next(timeout)
         for _ in chunks:
             chunk = _next_result(results, signals)
             episodes.extend(chunk)
             progress.update(len(chunk))
+    except BaseException:
+        stop.set()
+        raise
+    finally:
+        # never Pool.terminate(): a worker it kills while sending a result keeps the result
+        # queue's lock, and the pool's threads wait for that lock forever (an interrupted
+        # sharded run hung so, about once in a hundred)
+        pool.close()
+        pool.join()
     return episodes

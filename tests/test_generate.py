@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import signal
+import threading
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -362,3 +363,38 @@ def test_ctrl_c_in_a_sharded_run_leaves_nothing(tmp_path, monkeypatch):
     assert len(calls) == 6
     assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_stopping_pool_worker_ends_its_chunk_after_the_current_batch(monkeypatch):
+    stop = threading.Event()  # a worker's view of the pool's stop event
+    batches: list[int] = []
+
+    def batch_then_stop(scenario, seeds, cases):
+        batches.append(len(seeds))
+        stop.set()  # the parent stops the pool while this batch runs
+        return rollout_batch(scenario, seeds, cases)
+
+    monkeypatch.setattr(episode_runner, "_STOP", stop)
+    monkeypatch.setattr(episode_runner, "_SCENARIO", SCENARIOS["halting_car"]())
+    monkeypatch.setattr(episode_runner, "rollout_batch", batch_then_stop)
+    slots = plan(GenerateConfig.for_scenario("halting_car", **SMALL))[:12]
+    assert episode_runner._run_chunk((slots, 4)) == []  # no result is used once stopping
+    assert batches == [4]  # the batch under way finished; the other two never started
+    assert episode_runner._run_chunk((slots, 4)) == [] and batches == [4]  # queued: at once
+
+
+def test_ctrl_c_stops_a_pool_of_workers_and_reaches_the_caller():
+    class SignalOnSecondCheck:
+        checks = 0
+
+        def check(self) -> None:
+            self.checks += 1
+            if self.checks == 2:
+                raise KeyboardInterrupt
+
+    slots = plan(GenerateConfig.for_scenario("halting_car", num_major=40, num_test=0))
+    signals = SignalOnSecondCheck()
+    progress = SimpleNamespace(update=lambda n: None)
+    with pytest.raises(KeyboardInterrupt):  # the pool is closed and joined, not left hanging
+        episode_runner.run_slots(slots, "halting_car", 2, progress, signals, batch_scenes=4)
+    assert signals.checks == 2
