@@ -10,6 +10,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from predictor.graph import Graph
+
 MIN_HEADING_STEP_M = 1e-3  # [m] below this last displacement the heading is the world x axis
 
 AgentFrame = tuple[Tensor, Tensor]  # origins (B, N, 2) [m], rotations (cos, sin) (B, N, 2)
@@ -82,16 +84,15 @@ def own_features(pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFra
 
 
 def pair_features(
-    pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFrame, tail: Tensor, head: Tensor
+    pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFrame, graph: Graph
 ) -> Tensor:
     """Raw position and velocity of head j relative to tail i, in i's frame [m, m/step], for
-    packed edges given as flat agent indices b * N + i (E,): (S, E, 4). Inputs time-first
-    (S, B, N, 2)."""
-    rotation = frame[1].flatten(0, 1).index_select(0, tail)  # (E, 2) the tail's frame
+    the graph's packed edges: (S, E, 4). Inputs time-first (S, B, N, 2)."""
+    rotation = graph.at_tail(frame[1].flatten(0, 1).unsqueeze(0))[0]  # (E, 2) the tail's frame
     vel = torch.where(present.unsqueeze(-1), pos - prev_pos, 0.0).flatten(1, 2)  # (S, B*N, 2)
     flat = pos.flatten(1, 2)  # (S, B*N, 2)
-    rel = flat.index_select(1, head) - flat.index_select(1, tail)  # (S, E, 2)
-    rel_vel = vel.index_select(1, head) - vel.index_select(1, tail)  # (S, E, 2)
+    rel = graph.at_head(flat) - graph.at_tail(flat)  # (S, E, 2)
+    rel_vel = graph.at_head(vel) - graph.at_tail(vel)  # (S, E, 2)
     return torch.cat(
         [rotate(rel, rotation, inverse=True), rotate(rel_vel, rotation, inverse=True)], -1
     )

@@ -20,6 +20,14 @@ step the attention runs over the edges whose two agents are both present then.
 Edges are listed scene-major, then by tail slot, then by head slot, as flat agent indices
 b * N + i into the batch's B * N agent slots; for the complete graph of a fully present batch
 this is the order of `edge_index` repeated per scene.
+
+Such a graph (every slot of every scene linked to every other: `Graph.complete`, the paper's
+graph over a batch without padding slots) is stored the same way, but its per-edge operations
+take a dense path: its edge list is exactly the compact layout (B, N, N-1) flattened, so a sum
+over an agent's edges is a sum over the last axis and a gather of the tail's values a
+broadcast, with no scatter (`index_add`) forward or backward. Same values to float rounding
+(sums in another order), several times faster per call at the scenarios' shapes
+(benchmarks/README.md, issue 13).
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from predictor.config import NEIGHBOURS
@@ -40,6 +49,9 @@ class Graph:
     head: Tensor  # (E,) int64 flat index b * N + j of the attended agent
     num_scenes: int  # B
     num_agents: int  # N
+    # every ordered pair of distinct slots is an edge (E = B * N * (N-1), N >= 2): the edge
+    # list is then the compact layout, and the per-edge operations take their dense path
+    complete: bool = False
 
     @property
     def num_edges(self) -> int:
@@ -63,6 +75,8 @@ class Graph:
 
     def to_compact(self, values: Tensor) -> Tensor:
         """Per-edge values (S, E) into the compact layout (S, B, N, N-1), zero off the graph."""
+        if self.complete:
+            return values.reshape(values.shape[0], self.num_scenes, self.num_agents, -1)
         width = self.num_slots * (self.num_agents - 1)
         out = values.new_zeros(values.shape[0], width)  # (S, B*N*(N-1))
         out = out.index_copy(1, self.compact_index(), values)
@@ -70,13 +84,69 @@ class Graph:
 
     def sum_by_tail(self, values: Tensor) -> Tensor:
         """Sum of per-edge values (S, E, ...) over each agent's edges: (S, B*N, ...)."""
+        if self.complete:
+            rows = values.reshape(values.shape[0], self.num_slots, -1, *values.shape[2:])
+            return rows.sum(2)
         out = values.new_zeros(values.shape[0], self.num_slots, *values.shape[2:])
         return out.index_add(1, self.tail, values)
+
+    def at_tail(self, values: Tensor) -> Tensor:
+        """Each edge's tail's value of per-agent values (S, B*N, ...): (S, E, ...)."""
+        if not self.complete:
+            return values.index_select(1, self.tail)
+        return _CompleteTailGather.apply(values, self.tail, self.num_agents)
+
+    def at_head(self, values: Tensor) -> Tensor:
+        """Each edge's head's value of per-agent values (S, B*N, ...): (S, E, ...)."""
+        if not self.complete:
+            return values.index_select(1, self.head)
+        return _CompleteHeadGather.apply(values, self.head, self.num_scenes, self.num_agents)
 
     def edge_present(self, present: Tensor) -> Tensor:
         """Edges whose two agents are present: (S, B, N) -> (S, E) bool."""
         flat = present.flatten(1, 2)  # (S, B*N)
-        return flat.index_select(1, self.tail) & flat.index_select(1, self.head)
+        return self.at_tail(flat) & self.at_head(flat)
+
+
+class _CompleteTailGather(torch.autograd.Function):
+    """`Graph.at_tail` of a complete graph: a gather forward; backward, each agent's gradient
+    is the sum over its N-1 consecutive edges (a dense sum, where `index_select`'s backward
+    would scatter)."""
+
+    @staticmethod
+    def forward(ctx, values: Tensor, tail: Tensor, num_agents: int) -> Tensor:
+        ctx.num_agents = num_agents
+        return values.index_select(1, tail)
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad: Tensor) -> tuple[Tensor, None, None]:
+        steps, edges, rest = grad.shape[0], grad.shape[1], grad.shape[2:]
+        rows = grad.reshape(steps, edges // (ctx.num_agents - 1), ctx.num_agents - 1, *rest)
+        return rows.sum(2), None, None
+
+
+class _CompleteHeadGather(torch.autograd.Function):
+    """`Graph.at_head` of a complete graph: a gather forward; backward, each agent's gradient
+    is the sum over the edges it heads, taken as a dense sum over the (N, N) matrix of edges
+    with a zero diagonal, where `index_select`'s backward would scatter (`index_add`)."""
+
+    @staticmethod
+    def forward(ctx, values: Tensor, head: Tensor, num_scenes: int, num_agents: int) -> Tensor:
+        ctx.sizes = (num_scenes, num_agents)
+        return values.index_select(1, head)
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad: Tensor) -> tuple[Tensor, None, None, None]:
+        scenes, n = ctx.sizes
+        steps, rest = grad.shape[0], grad.shape[2:]
+        # edges of tail i are row i of the (N, N) matrix without its diagonal: flattened, that
+        # is the full matrix without its first entry and the last of every N + 1 that follow
+        rows = grad.reshape(steps, scenes, n - 1, n, -1)  # (S, B, N-1, N, C)
+        padded = F.pad(rows, (0, 0, 0, 1)).reshape(steps, scenes, (n - 1) * (n + 1), -1)
+        square = F.pad(padded, (0, 0, 1, 0)).view(steps, scenes, n, n, -1)  # [i, j], 0 at i = j
+        return square.sum(2).reshape(steps, scenes * n, *rest), None, None, None
 
 
 def anchor_steps(valid: Tensor, num_observed: int) -> Tensor:
@@ -146,7 +216,8 @@ def neighbour_graph(
     scene, tail, head = adjacency(positions, valid, num_observed, neighbours, radius_m, k).nonzero(
         as_tuple=True
     )  # (E,) each, scene-major, then tail, then head
-    return Graph(scene * num_agents + tail, scene * num_agents + head, batch, num_agents)
+    complete = num_agents >= 2 and len(tail) == batch * num_agents * (num_agents - 1)
+    return Graph(scene * num_agents + tail, scene * num_agents + head, batch, num_agents, complete)
 
 
 def segment_softmax(scores: Tensor, mask: Tensor, graph: Graph) -> Tensor:
@@ -154,20 +225,23 @@ def segment_softmax(scores: Tensor, mask: Tensor, graph: Graph) -> Tensor:
     masked edges, and every edge of a tail without an unmasked one, get 0."""
     lowest = torch.finfo(scores.dtype).min
     masked = scores.detach().masked_fill(~mask, lowest)  # (S, E)
-    tails = graph.tail.expand_as(masked)  # (S, E)
-    peak = masked.new_full((scores.shape[0], graph.num_slots), lowest)  # (S, B*N)
-    peak = peak.scatter_reduce(1, tails, masked, "amax")  # (S, B*N) for stability only
-    shifted = (scores - peak.index_select(1, graph.tail)).masked_fill(~mask, -torch.inf)
+    if graph.complete:  # (S, B*N) for stability only
+        peak = masked.view(scores.shape[0], graph.num_slots, -1).amax(-1)
+    else:
+        tails = graph.tail.expand_as(masked)  # (S, E)
+        peak = masked.new_full((scores.shape[0], graph.num_slots), lowest)  # (S, B*N)
+        peak = peak.scatter_reduce(1, tails, masked, "amax")
+    shifted = (scores - graph.at_tail(peak)).masked_fill(~mask, -torch.inf)
     weights = torch.exp(shifted)  # (S, E), 0 where masked
     total = graph.sum_by_tail(weights)  # (S, B*N)
-    return weights / total.index_select(1, graph.tail).clamp(min=torch.finfo(scores.dtype).tiny)
+    return weights / graph.at_tail(total).clamp(min=torch.finfo(scores.dtype).tiny)
 
 
 def segment_uniform(mask: Tensor, graph: Graph, dtype: torch.dtype = torch.float32) -> Tensor:
     """1 / (number of unmasked edges of the tail) on unmasked edges, 0 elsewhere: (S, E)."""
     weights = mask.to(dtype)  # (S, E)
     count = graph.sum_by_tail(weights)  # (S, B*N)
-    return weights / count.index_select(1, graph.tail).clamp(min=1.0)
+    return weights / graph.at_tail(count).clamp(min=1.0)
 
 
 def role_balance(
@@ -183,6 +257,6 @@ def role_balance(
     head_role = roles.flatten().index_select(0, graph.head)  # (E,)
     onehot = torch.nn.functional.one_hot(head_role, num_roles).to(dtype)  # (E, R)
     per_edge = mask.to(dtype).unsqueeze(-1) * onehot  # (S, E, R)
-    counts = graph.sum_by_tail(per_edge).index_select(1, graph.tail)  # (S, E, R)
+    counts = graph.at_tail(graph.sum_by_tail(per_edge))  # (S, E, R)
     same = counts.gather(-1, head_role.view(1, -1, 1).expand(mask.shape[0], -1, 1)).squeeze(-1)
     return -torch.log(same.clamp(min=1.0)).masked_fill(~mask, 0.0)

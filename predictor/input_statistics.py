@@ -36,11 +36,11 @@ class InputStatistics:
         own = own_features(pos, prev_pos, present, frame)  # (S, B, N, 4)
         own = (own - self.input_mean[:4]) / self.input_std[:4]
         own = torch.where(present.unsqueeze(-1), own, 0.0)
-        pair = pair_features(pos, prev_pos, present, frame, graph.tail, graph.head)  # (S, E, 4)
+        pair = pair_features(pos, prev_pos, present, frame, graph)  # (S, E, 4)
         pair = (pair - self.input_mean[4:]) / self.input_std[4:]
         pair = torch.where(graph.edge_present(present).unsqueeze(-1), pair, 0.0)
         width = 4 if self.config.edge_velocity else 2
-        own_per_edge = own[..., :2].flatten(1, 2).index_select(1, graph.tail)  # (S, E, 2)
+        own_per_edge = graph.at_tail(own[..., :2].flatten(1, 2))  # (S, E, 2)
         x_edge = self.f_interact(torch.cat([own_per_edge, pair[..., :width]], -1))
         return own[..., :2], own[..., 2:], x_edge
 
@@ -76,9 +76,9 @@ class InputStatistics:
         if self.config.standardise:  # over present agent-steps and the graph's present edges
             graph = steps.graph
             own = own_features(steps.pos, steps.prev_pos, present, steps.frame)[present]  # (K, 4)
-            pair = pair_features(
-                steps.pos, steps.prev_pos, present, steps.frame, graph.tail, graph.head
-            )[graph.edge_present(present)]  # (K2, 4)
+            pair = pair_features(steps.pos, steps.prev_pos, present, steps.frame, graph)[
+                graph.edge_present(present)
+            ]  # (K2, 4)
             pair_mean, pair_std = pair.new_zeros(4), pair.new_ones(4)  # no pairs: identity
             if len(pair) >= 2:  # (scenes of one agent have no pairs to measure)
                 pair_mean, pair_std = pair.mean(0), pair.std(0)
@@ -127,5 +127,5 @@ class InputStatistics:
         w_tail, w_rel = linear.weight[:, :2], linear.weight[:, 2:] * gain  # (E, 2), (E, 2)
         per_tail = F.linear(rel, w_tail - w_rel, linear.bias).flatten(1, 2)  # (S, B*N, emb)
         per_head = F.linear(rel, w_rel).flatten(1, 2)  # (S, B*N, emb)
-        summed = per_tail.index_select(1, graph.tail) + per_head.index_select(1, graph.head)
+        summed = graph.at_tail(per_tail) + graph.at_head(per_head)
         return self.f_interact[1](summed)  # (S, E, emb)

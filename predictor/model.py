@@ -349,6 +349,7 @@ class SmoothAttentionPredictor(InputStatistics, HighwayMaps, nn.Module):
         # an agent absent at T_obs-2 has no acceleration at the first rollout step (as in
         # _prepare): prev2 is then set so that it reads zero
         first_known = steps.present[t_obs - 2] if t_obs >= 2 else torch.zeros_like(present)
+        presence = self._presence(present[None], steps)  # the same at every rollout step
         anchor = None  # velocity at the last observed step (rollout_prior "anchored")
         if self.config.rollout_prior == "anchored":
             anchor = steps.pos[t_obs - 1] - steps.prev_pos[t_obs - 1]  # (B, N, 2)
@@ -381,6 +382,7 @@ class SmoothAttentionPredictor(InputStatistics, HighwayMaps, nn.Module):
                 state,
                 step_anchor,
                 prev2[None],
+                presence,
             )
             gaussian = Gaussian2D(block.gaussian.mean[0], block.gaussian.tril[0])  # (B, N, .)
             gaussians.append(gaussian)
@@ -405,12 +407,14 @@ class SmoothAttentionPredictor(InputStatistics, HighwayMaps, nn.Module):
         state: RecurrentState | None,
         anchor: Tensor | None = None,
         prev2_pos: Tensor | None = None,
+        presence: _Presence | None = None,
     ) -> StepOutputs:
         """S consecutive steps through the graph; inputs time-first (S, B, N, .).
 
         `anchor` (B, N, 2) [m/step]: rollout steps with the anchored prior p^t + anchor and the
         offset from F_roll (rollout_prior "anchored"); None: the one-step prior. `prev2_pos`:
-        the positions two steps back (read with `acceleration_input`).
+        the positions two steps back (read with `acceleration_input`). `presence`: the edges'
+        presence terms of `present` (`_presence`), if already computed.
         """
         num_steps, batch, num_agents, _ = pos.shape
         cfg = self.config
@@ -436,8 +440,10 @@ class SmoothAttentionPredictor(InputStatistics, HighwayMaps, nn.Module):
         state = state or RecurrentState(None, None, None)
         o_edge, h_edge = self.g_interact(x_edge, state.edge)  # (S, E, H) over the packed edges
         o_self, h_self = self.g_self(x_self.flatten(1, 2), state.self_loop)  # (S, B*N, H)
-        together = graph.edge_present(present)  # (S, E) both ends present at the step
-        theta = self._attention(o_self, o_edge, together, labels, graph, steps.role_index)
+        presence = presence or self._presence(present, steps)
+        theta = self._attention(
+            o_self, o_edge, presence, labels, graph, self._pair_bias(steps)
+        )  # (S, E)
         attended = graph.sum_by_tail(theta.unsqueeze(-1) * o_edge)  # (S, B*N, H)
         attended = attended.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
         o_self = o_self.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
@@ -482,41 +488,60 @@ class SmoothAttentionPredictor(InputStatistics, HighwayMaps, nn.Module):
         self,
         o_self: Tensor,
         o_edge: Tensor,
-        together: Tensor,
+        presence: _Presence,
         labels: Tensor | None,
         graph: Graph,
-        roles: Tensor | None = None,
+        pair_bias: Tensor | None = None,
     ) -> Tensor:
-        """theta (S, E) of each agent over its graph neighbours present at the step (`together`
-        (S, E): both ends present); an agent without one gets zeros. o_self (S, B*N, H),
-        o_edge (S, E, H), labels (S, B, N) (oracle), roles (B, N) (`role_attention_bias`)."""
+        """theta (S, E) of each agent over its graph neighbours present at the step
+        (`presence.together` (S, E): both ends present); an agent without one gets zeros.
+        o_self (S, B*N, H), o_edge (S, E, H), labels (S, B, N) (oracle), pair_bias (E,) the
+        learned bias of each edge's pair of roles (`role_attention_bias`)."""
         mode = self.config.attention_mode
+        together = presence.together
         if mode == "learned":
             # <F_attn(o_ii), W o_ij + b> = <W^T F_attn(o_ii), o_ij> + <F_attn(o_ii), b>; the
             # last term is the same for every j of row i and cancels in the softmax, so F_attn
             # need not be applied to the edge outputs (same theta, far cheaper).
             query = self.f_attn(o_self) @ self.f_attn.weight  # (S, B*N, H)
-            scores = (o_edge * query.index_select(1, graph.tail)).sum(-1)  # (S, E)
-            prior = None
-            if self.config.role_balanced_attention and roles is not None:
-                prior = role_balance(roles, together, graph, self.config.num_roles, scores.dtype)
-            if self.role_pair is not None and roles is not None:
-                if self.config.role_bias_by_group:
-                    roles = self._groups_of(roles, roles)
-                flat = roles.flatten()  # (B*N,)
-                pair = self.role_pair[flat[graph.tail], flat[graph.head]]  # (E,)
-                scores = scores + pair
+            scores = (o_edge * graph.at_tail(query)).sum(-1)  # (S, E)
+            if pair_bias is not None:
+                scores = scores + pair_bias
             logits = scores * self.config.attention_gain
-            if prior is not None:
-                logits = logits + prior
+            if presence.prior is not None:
+                logits = logits + presence.prior
             return segment_softmax(logits, together, graph)
         uniform = segment_uniform(together, graph, o_edge.dtype)  # (S, E)
         if mode == "uniform":
             return uniform
-        label = labels.flatten(1, 2).index_select(1, graph.tail)  # (S, E) the tail's label
+        label = graph.at_tail(labels.flatten(1, 2))  # (S, E) the tail's label
         onehot = (graph.head_slot() == label) & together  # (S, E)
         labelled = graph.sum_by_tail(onehot.to(uniform.dtype)) > 0  # (S, B*N)
-        return torch.where(labelled.index_select(1, graph.tail), onehot.to(uniform.dtype), uniform)
+        return torch.where(graph.at_tail(labelled), onehot.to(uniform.dtype), uniform)
+
+    def _presence(self, present: Tensor, steps: _Steps) -> _Presence:
+        """Which edges have both agents present at each step, and the learned attention's
+        role-balance prior over them (`role_balanced_attention`), for present (S, B, N)."""
+        together = steps.graph.edge_present(present)  # (S, E)
+        prior = None
+        roles = steps.role_index
+        cfg = self.config
+        if cfg.attention_mode == "learned" and cfg.role_balanced_attention and roles is not None:
+            prior = role_balance(roles, together, steps.graph, cfg.num_roles, steps.pos.dtype)
+        return _Presence(together, prior)
+
+    def _pair_bias(self, steps: _Steps) -> Tensor | None:
+        """The learned bias of each edge's pair of roles (E,) (`role_attention_bias`), once a
+        pass (kept in `steps`); None without it."""
+        if self.role_pair is None or steps.role_index is None:
+            return None
+        if steps.pair_bias is None:
+            roles = steps.role_index
+            if self.config.role_bias_by_group:
+                roles = self._groups_of(roles, roles)
+            flat = roles.flatten()  # (B*N,)
+            steps.pair_bias = self.role_pair[flat[steps.graph.tail], flat[steps.graph.head]]
+        return steps.pair_bias
 
     def _gaussian(self, raw: Tensor, base: Tensor) -> Gaussian2D:
         """Next-position Gaussian from the F_pred output (..., 5) and the base of the mean [m]."""
@@ -545,3 +570,12 @@ class _Steps:
     role_index: Tensor | None = None  # (B, N) int64 agent roles (num_roles > 0) or None
     scenes: Tensor | None = None  # (B,) int64 training-split indices (cross-fitted highway)
     graph: Graph | None = None  # the pass's neighbour graph (fixed over its steps)
+    pair_bias: Tensor | None = None  # (E,) the role-pair attention bias, once computed
+
+
+@dataclass
+class _Presence:
+    """Per-step edge terms that depend only on which agents are present."""
+
+    together: Tensor  # (S, E) bool: both agents of the edge present
+    prior: Tensor | None  # (S, E) role-balance logit prior of the learned attention, or None

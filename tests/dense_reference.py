@@ -81,6 +81,7 @@ class DensePredictor(SmoothAttentionPredictor):
         state: RecurrentState | None,
         anchor: Tensor | None = None,
         prev2_pos: Tensor | None = None,
+        presence: object = None,  # the packed model's edge terms, which this one has not
     ) -> StepOutputs:
         num_steps, batch, num_agents, _ = pos.shape
         cfg = self.config

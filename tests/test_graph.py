@@ -4,6 +4,8 @@ brute-force numpy computation, the packed complete graph against the dense refer
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -118,6 +120,44 @@ def test_complete_graph_of_a_full_batch_is_the_dense_edge_order():
     assert pairs == [(b, i, j) for b in range(2) for i in range(4) for j in range(4) if i != j]
     values = torch.arange(graph.num_edges, dtype=torch.float32).unsqueeze(0)  # (1, E)
     assert torch.equal(graph.to_compact(values).flatten(), values[0])
+
+
+def test_a_complete_graph_is_marked_so_and_others_are_not():
+    positions, valid, _, _ = crowd(batch=2, agents=5, full=True)
+    assert neighbour_graph(positions, valid, 5, "all").complete
+    assert not neighbour_graph(positions, valid, 5, "knn", k=2).complete
+    positions, valid, _, _ = crowd(batch=2, agents=5)  # a padding slot: no edges to it
+    assert not neighbour_graph(positions, valid, 5, "all").complete
+    one = neighbour_graph(positions[:, :, :1], valid[:, :, :1], 5, "all")
+    assert not one.complete and one.num_edges == 0
+
+
+def test_the_complete_graphs_dense_path_equals_the_packed_one():
+    """Every per-edge operation of a complete graph (dense path) against the same graph with
+    the flag off (the packed index_select / index_add path): values, and gradients in float64
+    (gradcheck for the gather with a hand-written backward)."""
+    positions, valid, _, _ = crowd(batch=3, agents=6, full=True)
+    dense = neighbour_graph(positions, valid, 5, "all")
+    packed = dataclasses.replace(dense, complete=False)
+    gen = torch.Generator().manual_seed(2)
+    per_agent = torch.randn(4, dense.num_slots, 3, generator=gen, dtype=torch.float64)
+    per_edge = torch.randn(4, dense.num_edges, 3, generator=gen, dtype=torch.float64)
+    scores = torch.randn(4, dense.num_edges, generator=gen, dtype=torch.float64)
+    mask = torch.rand(4, dense.num_edges, generator=gen) > 0.3
+    mask[0, : dense.num_agents - 1] = False  # one agent with no present neighbour
+    for name in ("at_tail", "at_head"):
+        assert torch.equal(getattr(dense, name)(per_agent), getattr(packed, name)(per_agent))
+        assert torch.autograd.gradcheck(getattr(dense, name), per_agent.requires_grad_())
+    torch.testing.assert_close(dense.sum_by_tail(per_edge), packed.sum_by_tail(per_edge))
+    assert torch.equal(dense.to_compact(scores), packed.to_compact(scores))
+    for graph in (dense, packed):
+        assert torch.equal(graph.edge_present(valid.transpose(0, 1)), valid.new_ones(10, 90))
+    torch.testing.assert_close(
+        segment_softmax(scores, mask, dense), segment_softmax(scores, mask, packed)
+    )
+    torch.testing.assert_close(segment_uniform(mask, dense), segment_uniform(mask, packed))
+    roles = torch.tensor([[0, 1, 2, 2, 2, 2]]).expand(3, -1)
+    assert torch.equal(role_balance(roles, mask, dense, 3), role_balance(roles, mask, packed, 3))
 
 
 def test_segment_softmax_equals_a_softmax_per_agent():
@@ -241,6 +281,41 @@ def test_packed_complete_graph_equals_the_dense_model(mode, preset, full):
     pred_d = dense.predict(positions, valid, 5, labels, roles)
     torch.testing.assert_close(pred_p.rollout.mean, pred_d.rollout.mean)
     torch.testing.assert_close(pred_p.rollout_attention, pred_d.rollout_attention)
+
+
+@pytest.mark.parametrize("preset", ["paper", "agent"])
+def test_the_dense_path_gives_the_packed_paths_losses_and_gradients(preset, monkeypatch):
+    """The whole model (the agent preset with its role-pair bias and role balance) on a
+    complete graph, taking the dense path, against the same graph with the flag off."""
+    positions, valid, labels, roles = crowd(batch=3, steps=10, agents=7, full=True)
+    focal = torch.zeros(3, 7, dtype=torch.bool)
+    focal[:, :2] = True
+    switches = {"role_attention_bias": True, "role_balanced_attention": True}
+    model, _ = model_pair("learned", preset, **(switches if preset == "agent" else {}))
+    live_heads(model)
+    if model.config.frame == "agent":
+        model.fit_normalisation(positions, valid, 5, roles)
+    if model.role_pair is not None:
+        with torch.no_grad():
+            model.role_pair.copy_(torch.linspace(-1, 1, model.role_pair.numel()).view(3, 3))
+    runs = []
+    for complete in (True, False):
+
+        def graph(*args, complete=complete):
+            return dataclasses.replace(neighbour_graph(*args), complete=complete)
+
+        monkeypatch.setattr("predictor.model.neighbour_graph", graph)
+        assert model._graph(positions, valid, 5).complete is complete
+        runs.append(loss_and_grads(model, positions, valid, labels, roles, focal))
+    (out_d, terms_d, grads_d), (out_p, terms_p, grads_p) = runs
+    torch.testing.assert_close(out_d.rollout.mean, out_p.rollout.mean)
+    torch.testing.assert_close(out_d.rollout_attention, out_p.rollout_attention)
+    for name in terms_p:
+        assert terms_d[name] == pytest.approx(terms_p[name], rel=1e-5, abs=1e-6), name
+    assert grads_d.keys() == grads_p.keys() and len(grads_p) > 5
+    for name in grads_p:
+        scale = float(grads_p[name].abs().max())  # float32 sums in another order
+        torch.testing.assert_close(grads_d[name], grads_p[name], rtol=1e-4, atol=1e-5 * scale)
 
 
 def test_standardisation_statistics_equal_the_dense_ones():
