@@ -397,9 +397,9 @@ def test_rollout_accelerations_continue_the_observed_ones(monkeypatch):
     seen = []
     original = model._run
 
-    def spy(pos, prev_pos, present, steps, labels, state, anchor=None, prev2_pos=None):
+    def spy(pos, prev_pos, present, steps, labels, state, anchor=None, prev2_pos=None, *rest):
         seen.append((pos - 2 * prev_pos + prev2_pos).abs().max())
-        return original(pos, prev_pos, present, steps, labels, state, anchor, prev2_pos)
+        return original(pos, prev_pos, present, steps, labels, state, anchor, prev2_pos, *rest)
 
     monkeypatch.setattr(model, "_run", spy)
     out = model.predict(positions, valid, 4)
@@ -434,9 +434,9 @@ def test_an_agent_first_seen_at_the_last_observed_step_reads_no_rollout_accelera
     seen = []
     original = model._run
 
-    def spy(pos, prev_pos, present, steps, labels, state, anchor=None, prev2_pos=None):
+    def spy(pos, prev_pos, present, steps, labels, state, anchor=None, prev2_pos=None, *rest):
         seen.append(pos - 2 * prev_pos + prev2_pos)
-        return original(pos, prev_pos, present, steps, labels, state, anchor, prev2_pos)
+        return original(pos, prev_pos, present, steps, labels, state, anchor, prev2_pos, *rest)
 
     monkeypatch.setattr(model, "_run", spy)
     model.predict(positions, valid, 4)
