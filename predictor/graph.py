@@ -24,10 +24,10 @@ this is the order of `edge_index` repeated per scene.
 Such a graph (every slot of every scene linked to every other: `Graph.complete`, the paper's
 graph over a batch without padding slots) is stored the same way, but its per-edge operations
 take a dense path: its edge list is exactly the compact layout (B, N, N-1) flattened, so a sum
-over an agent's edges is a sum over the last axis and a gather of the tail's values a
-broadcast, with no scatter (`index_add`) forward or backward. Same values to float rounding
-(sums in another order), several times faster per call at the scenarios' shapes
-(benchmarks/README.md, issue 13).
+over an agent's edges is a sum over the last axis, and the gathers of an edge's tail or head
+values keep their `index_select` forward but sum densely backward, with no scatter
+(`index_add`) either way. Same values to float rounding (sums in another order), several
+times faster per call at the scenarios' shapes (benchmarks/README.md, issue 13).
 """
 
 from __future__ import annotations
