@@ -58,26 +58,18 @@ are masked out of the attention while absent.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
 from predictor.agent_frame import (
-    AgentFrame,
     agent_frames,
     rotate,
     rotate_tril,
 )
+from predictor.attention import GraphAttention, Presence
 from predictor.config import ModelConfig
-from predictor.graph import (
-    Graph,
-    neighbour_graph,
-    role_balance,
-    segment_softmax,
-    segment_uniform,
-)
+from predictor.graph import Graph, neighbour_graph
 from predictor.highway import (
     CROSS_FIT_FOLDS,
 )
@@ -90,6 +82,7 @@ from predictor.outputs import (
     Rollout,
     StepOutputs,
 )
+from predictor.pass_inputs import PassInputs as _Steps
 
 MAX_LOG_GAIN = 12.0  # cap of log(std excess / initial excess): stds stay finite
 # agent-frame features, 2 each: own position, own velocity, relative position, relative velocity
@@ -103,7 +96,7 @@ def scene_origin(positions: Tensor, valid: Tensor, step: int) -> Tensor:
     return total / mask.sum(dim=1).clamp(min=1.0)  # (B, 2)
 
 
-class SmoothAttentionPredictor(InputStatistics, HighwayMaps, nn.Module):
+class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.Module):
     """Graph-RNN trajectory predictor with (learned, uniform or oracle) attention."""
 
     def __init__(self, config: ModelConfig) -> None:
@@ -407,7 +400,7 @@ class SmoothAttentionPredictor(InputStatistics, HighwayMaps, nn.Module):
         state: RecurrentState | None,
         anchor: Tensor | None = None,
         prev2_pos: Tensor | None = None,
-        presence: _Presence | None = None,
+        presence: Presence | None = None,
     ) -> StepOutputs:
         """S consecutive steps through the graph; inputs time-first (S, B, N, .).
 
@@ -484,65 +477,6 @@ class SmoothAttentionPredictor(InputStatistics, HighwayMaps, nn.Module):
         local = self._gaussian(raw, torch.zeros_like(base))
         return Gaussian2D(base + offset, rotate_tril(local.tril, rotation))
 
-    def _attention(
-        self,
-        o_self: Tensor,
-        o_edge: Tensor,
-        presence: _Presence,
-        labels: Tensor | None,
-        graph: Graph,
-        pair_bias: Tensor | None = None,
-    ) -> Tensor:
-        """theta (S, E) of each agent over its graph neighbours present at the step
-        (`presence.together` (S, E): both ends present); an agent without one gets zeros.
-        o_self (S, B*N, H), o_edge (S, E, H), labels (S, B, N) (oracle), pair_bias (E,) the
-        learned bias of each edge's pair of roles (`role_attention_bias`)."""
-        mode = self.config.attention_mode
-        together = presence.together
-        if mode == "learned":
-            # <F_attn(o_ii), W o_ij + b> = <W^T F_attn(o_ii), o_ij> + <F_attn(o_ii), b>; the
-            # last term is the same for every j of row i and cancels in the softmax, so F_attn
-            # need not be applied to the edge outputs (same theta, far cheaper).
-            query = self.f_attn(o_self) @ self.f_attn.weight  # (S, B*N, H)
-            scores = (o_edge * graph.at_tail(query)).sum(-1)  # (S, E)
-            if pair_bias is not None:
-                scores = scores + pair_bias
-            logits = scores * self.config.attention_gain
-            if presence.prior is not None:
-                logits = logits + presence.prior
-            return segment_softmax(logits, together, graph)
-        uniform = segment_uniform(together, graph, o_edge.dtype)  # (S, E)
-        if mode == "uniform":
-            return uniform
-        label = graph.at_tail(labels.flatten(1, 2))  # (S, E) the tail's label
-        onehot = (graph.head_slot() == label) & together  # (S, E)
-        labelled = graph.sum_by_tail(onehot.to(uniform.dtype)) > 0  # (S, B*N)
-        return torch.where(graph.at_tail(labelled), onehot.to(uniform.dtype), uniform)
-
-    def _presence(self, present: Tensor, steps: _Steps) -> _Presence:
-        """Which edges have both agents present at each step, and the learned attention's
-        role-balance prior over them (`role_balanced_attention`), for present (S, B, N)."""
-        together = steps.graph.edge_present(present)  # (S, E)
-        prior = None
-        roles = steps.role_index
-        cfg = self.config
-        if cfg.attention_mode == "learned" and cfg.role_balanced_attention and roles is not None:
-            prior = role_balance(roles, together, steps.graph, cfg.num_roles, steps.pos.dtype)
-        return _Presence(together, prior)
-
-    def _pair_bias(self, steps: _Steps) -> Tensor | None:
-        """The learned bias of each edge's pair of roles (E,) (`role_attention_bias`), once a
-        pass (kept in `steps`); None without it."""
-        if self.role_pair is None or steps.role_index is None:
-            return None
-        if steps.pair_bias is None:
-            roles = steps.role_index
-            if self.config.role_bias_by_group:
-                roles = self._groups_of(roles, roles)
-            flat = roles.flatten()  # (B*N,)
-            steps.pair_bias = self.role_pair[flat[steps.graph.tail], flat[steps.graph.head]]
-        return steps.pair_bias
-
     def _gaussian(self, raw: Tensor, base: Tensor) -> Gaussian2D:
         """Next-position Gaussian from the F_pred output (..., 5) and the base of the mean [m]."""
         cfg = self.config
@@ -552,30 +486,3 @@ class SmoothAttentionPredictor(InputStatistics, HighwayMaps, nn.Module):
         off = raw[..., 4:5] * diag[..., 1:]  # (..., 1) l21 = c * l22: correlation c / sqrt(1+c^2)
         tril = torch.cat([diag[..., :1], off, diag[..., 1:]], -1)  # (..., 3)
         return Gaussian2D(mean, tril)
-
-
-@dataclass
-class _Steps:
-    """Per-step model inputs, time-first."""
-
-    pos: Tensor  # (T, B, N, 2) [m]
-    prev_pos: Tensor  # (T, B, N, 2) [m] previous position (current one if absent before)
-    prev2_pos: Tensor  # (T, B, N, 2) [m] two steps back (see _prepare for absent agents)
-    present: Tensor  # (T, B, N) bool
-    labels: Tensor | None  # (T, B, N) int64 attention labels, -1 none
-    origin: Tensor  # (B, 2) [m]
-    num_observed: int
-    frame: AgentFrame | None = None  # agent frames (frame="agent") or None (scene frame)
-    roles: Tensor | None = None  # (B, N, R) one-hot agent roles (num_roles > 0) or None
-    role_index: Tensor | None = None  # (B, N) int64 agent roles (num_roles > 0) or None
-    scenes: Tensor | None = None  # (B,) int64 training-split indices (cross-fitted highway)
-    graph: Graph | None = None  # the pass's neighbour graph (fixed over its steps)
-    pair_bias: Tensor | None = None  # (E,) the role-pair attention bias, once computed
-
-
-@dataclass
-class _Presence:
-    """Per-step edge terms that depend only on which agents are present."""
-
-    together: Tensor  # (S, E) bool: both agents of the edge present
-    prior: Tensor | None  # (S, E) role-balance logit prior of the learned attention, or None

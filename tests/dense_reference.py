@@ -16,8 +16,9 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from predictor.agent_frame import AgentFrame, rotate
-from predictor.model import SmoothAttentionPredictor, _Steps
+from predictor.model import SmoothAttentionPredictor
 from predictor.outputs import RecurrentState, StepOutputs, edge_index
+from predictor.pass_inputs import PassInputs as _Steps
 
 
 def edge_present(present: Tensor, head: Tensor) -> Tensor:

@@ -253,6 +253,17 @@ def loss_and_grads(model, positions, valid, labels, roles, focal):
     return out, terms, grads
 
 
+def assert_same_losses_and_gradients(terms, grads, expected_terms, expected_grads):
+    """Loss terms and parameter gradients equal to float32 rounding (sums in another order)."""
+    assert terms.keys() == expected_terms.keys()
+    for name in terms:
+        assert terms[name] == pytest.approx(expected_terms[name], rel=1e-5, abs=1e-6), name
+    assert grads.keys() == expected_grads.keys() and len(grads) > 5
+    for name in grads:
+        scale = float(expected_grads[name].abs().max())
+        torch.testing.assert_close(grads[name], expected_grads[name], rtol=1e-4, atol=1e-5 * scale)
+
+
 @pytest.mark.parametrize("full", [True, False])
 @pytest.mark.parametrize(
     ("mode", "preset"),
@@ -270,13 +281,7 @@ def test_packed_complete_graph_equals_the_dense_model(mode, preset, full):
         torch.testing.assert_close(getattr(out_p, name).tril, getattr(out_d, name).tril)
     torch.testing.assert_close(out_p.attention, out_d.attention)
     torch.testing.assert_close(out_p.rollout_attention, out_d.rollout_attention)
-    assert terms_p.keys() == terms_d.keys()
-    for name in terms_p:
-        assert terms_p[name] == pytest.approx(terms_d[name], rel=1e-5, abs=1e-6), name
-    assert grads_p.keys() == grads_d.keys() and len(grads_p) > 5
-    for name in grads_p:
-        scale = float(grads_d[name].abs().max())  # float32 sums in another order
-        torch.testing.assert_close(grads_p[name], grads_d[name], rtol=1e-4, atol=1e-5 * scale)
+    assert_same_losses_and_gradients(terms_p, grads_p, terms_d, grads_d)
     pred_p = packed.predict(positions, valid, 5, labels, roles)
     pred_d = dense.predict(positions, valid, 5, labels, roles)
     torch.testing.assert_close(pred_p.rollout.mean, pred_d.rollout.mean)
@@ -310,12 +315,7 @@ def test_the_dense_path_gives_the_packed_paths_losses_and_gradients(preset, monk
     (out_d, terms_d, grads_d), (out_p, terms_p, grads_p) = runs
     torch.testing.assert_close(out_d.rollout.mean, out_p.rollout.mean)
     torch.testing.assert_close(out_d.rollout_attention, out_p.rollout_attention)
-    for name in terms_p:
-        assert terms_d[name] == pytest.approx(terms_p[name], rel=1e-5, abs=1e-6), name
-    assert grads_d.keys() == grads_p.keys() and len(grads_p) > 5
-    for name in grads_p:
-        scale = float(grads_p[name].abs().max())  # float32 sums in another order
-        torch.testing.assert_close(grads_d[name], grads_p[name], rtol=1e-4, atol=1e-5 * scale)
+    assert_same_losses_and_gradients(terms_d, grads_d, terms_p, grads_p)
 
 
 def test_standardisation_statistics_equal_the_dense_ones():
