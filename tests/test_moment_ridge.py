@@ -171,3 +171,35 @@ def test_min_std_scales_a_nearly_constant_feature_by_the_floor(centred: bool):
         x, moment, y, groups, (alpha,), folds=3, form=RidgeForm(centred=centred)
     )
     assert abs(plain[1, 0]) > 10 * abs(coef[1, 0])
+
+
+def test_group_statistics_are_each_groups_weighted_sums():
+    # unsorted groups, weights and moments that are not outer products of the means (edge
+    # rows): every statistic against an explicit sum over the group's samples
+    gen = np.random.default_rng(11)
+    samples, features, outputs, count = 40, 4, 3, 6
+    mean = gen.normal(size=(samples, features))
+    moment = gen.normal(size=(samples, features, features))
+    target = gen.normal(size=(samples, outputs))
+    weights = gen.uniform(0.1, 2.0, size=samples)
+    group = gen.permutation(np.arange(samples) % count)
+    stats = group_statistics(mean, moment, target, weights, group, count)
+    for g in range(count):
+        rows = group == g
+        w = weights[rows]
+        expected = (
+            w.sum(),
+            w @ mean[rows],
+            w @ target[rows],
+            np.einsum("n,nij->ij", w, moment[rows]),
+            np.einsum("n,ni,nd->id", w, mean[rows], target[rows]),
+        )
+        for got, want in zip(stats, expected, strict=True):
+            np.testing.assert_allclose(got[g], want, rtol=1e-12, atol=1e-12)
+
+
+def test_group_statistics_refuse_a_group_without_samples():
+    x, y, _ = noisy_linear(10, 2, 1, seed=3)
+    group = np.array([0, 0, 2, 2, 0, 2, 0, 0, 2, 2])  # group 1 of 3 is empty
+    with pytest.raises(ValueError, match="at least one sample"):
+        group_statistics(x, x[:, :, None] * x[:, None, :], y, np.ones(10), group, 3)
