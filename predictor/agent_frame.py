@@ -19,11 +19,12 @@ AgentFrame = tuple[Tensor, Tensor]  # origins (B, N, 2) [m], rotations (cos, sin
 
 def rotate(vectors: Tensor, rotation: Tensor, inverse: bool = False) -> Tensor:
     """Rotate (..., B, N, 2) vectors by per-agent (cos, sin) (B, N, 2); `inverse`: by minus."""
-    cos, sin = rotation[..., 0], rotation[..., 1]  # (B, N)
-    if inverse:
-        sin = -sin
-    x, y = vectors[..., 0], vectors[..., 1]
-    return torch.stack([cos * x - sin * y, sin * x + cos * y], -1)
+    # (cos x - sin y, sin x + cos y) = (x, y) cos + (y, x) (-sin, sin): the same products and
+    # sums (bit for bit), in 4 differentiable ops instead of 9 (the rollout rotates ~260 times
+    # a training pass)
+    cos, sin = rotation[..., :1], rotation[..., 1:]  # (B, N, 1)
+    signed = torch.cat([sin, -sin] if inverse else [-sin, sin], -1)  # (B, N, 2)
+    return vectors * cos + vectors.flip(-1) * signed
 
 
 def rotate_tril(tril: Tensor, rotation: Tensor) -> Tensor:
@@ -31,21 +32,17 @@ def rotate_tril(tril: Tensor, rotation: Tensor) -> Tensor:
 
     l22 comes from det(Sigma) = (l11 l22)^2, which rotation keeps, so it stays positive.
     """
-    l11, l21, l22 = tril[..., 0], tril[..., 1], tril[..., 2]
-    cov = torch.stack(  # L L^T, (..., 2, 2)
-        [
-            torch.stack([l11 * l11, l11 * l21], -1),
-            torch.stack([l11 * l21, l21 * l21 + l22 * l22], -1),
-        ],
-        -2,
-    )
+    # R L's columns (p, q) with q = l22 (-sin, cos): R Sigma R^T = p p^T + q q^T, so its
+    # (1, 1) entry is p_x^2 + sin^2 l22^2 and its (2, 1) entry p_x p_y - sin cos l22^2
+    # (closed form; fewer and cheaper ops than the 2 x 2 products it replaced)
+    l11, l22 = tril[..., 0], tril[..., 2]
+    p = rotate(tril[..., :2], rotation)  # (..., 2): R (l11, l21)
     cos, sin = rotation[..., 0], rotation[..., 1]
-    rot = torch.stack([torch.stack([cos, -sin], -1), torch.stack([sin, cos], -1)], -2)
-    world = rot @ cov @ rot.transpose(-1, -2)  # (..., 2, 2)
-    l11 = world[..., 0, 0].sqrt()
-    l21 = world[..., 1, 0] / l11
-    l22 = tril[..., 0] * tril[..., 2] / l11
-    return torch.stack([l11, l21, l22], -1)
+    l22_squared = l22 * l22
+    world_11 = p[..., 0] * p[..., 0] + (sin * sin) * l22_squared
+    world_21 = p[..., 0] * p[..., 1] - (sin * cos) * l22_squared
+    new_l11 = world_11.sqrt()
+    return torch.stack([new_l11, world_21 / new_l11, l11 * l22 / new_l11], -1)
 
 
 def agent_frames(positions: Tensor, valid: Tensor, num_observed: int) -> AgentFrame:
@@ -79,8 +76,8 @@ def own_features(pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFra
     inputs time-first (S, B, N, 2)."""
     origin, rotation = frame
     vel = torch.where(present.unsqueeze(-1), pos - prev_pos, 0.0)  # (S, B, N, 2)
-    own = rotate(pos - origin, rotation, inverse=True)  # (S, B, N, 2)
-    return torch.cat([own, rotate(vel, rotation, inverse=True)], -1)
+    both = torch.stack([pos - origin, vel], -2)  # (S, B, N, 2 vectors, 2)
+    return rotate(both, rotation.unsqueeze(-2), inverse=True).flatten(-2)  # one rotation
 
 
 def pair_features(
@@ -89,10 +86,7 @@ def pair_features(
     """Raw position and velocity of head j relative to tail i, in i's frame [m, m/step], for
     the graph's packed edges: (S, E, 4). Inputs time-first (S, B, N, 2)."""
     rotation = graph.at_tail(frame[1].flatten(0, 1).unsqueeze(0))[0]  # (E, 2) the tail's frame
-    vel = torch.where(present.unsqueeze(-1), pos - prev_pos, 0.0).flatten(1, 2)  # (S, B*N, 2)
-    flat = pos.flatten(1, 2)  # (S, B*N, 2)
-    rel = graph.at_head(flat) - graph.at_tail(flat)  # (S, E, 2)
-    rel_vel = graph.at_head(vel) - graph.at_tail(vel)  # (S, E, 2)
-    return torch.cat(
-        [rotate(rel, rotation, inverse=True), rotate(rel_vel, rotation, inverse=True)], -1
-    )
+    vel = torch.where(present.unsqueeze(-1), pos - prev_pos, 0.0)  # (S, B, N, 2)
+    both = torch.cat([pos, vel], -1).flatten(1, 2)  # (S, B*N, 4): one gather per end
+    rel = (graph.at_head(both) - graph.at_tail(both)).unflatten(-1, (2, 2))  # (S, E, 2, 2)
+    return rotate(rel, rotation.unsqueeze(-2), inverse=True).flatten(-2)

@@ -474,15 +474,17 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
         if scale is None:
             scale = self.offset_std if cfg.offset_scale == "deviation" else cfg.step_scale_m
         offset = rotate(raw[..., :2] * scale, rotation)  # (..., 2)
-        local = self._gaussian(raw, torch.zeros_like(base))
-        return Gaussian2D(base + offset, rotate_tril(local.tril, rotation))
+        return Gaussian2D(base + offset, rotate_tril(self._tril(raw), rotation))
 
     def _gaussian(self, raw: Tensor, base: Tensor) -> Gaussian2D:
         """Next-position Gaussian from the F_pred output (..., 5) and the base of the mean [m]."""
+        mean = base + raw[..., :2] * self.config.step_scale_m  # (..., 2)
+        return Gaussian2D(mean, self._tril(raw))
+
+    def _tril(self, raw: Tensor) -> Tensor:
+        """Cholesky entries (l11, l21, l22) (..., 3) from the F_pred output's last three."""
         cfg = self.config
-        mean = base + raw[..., :2] * cfg.step_scale_m  # (..., 2)
         log_gain = (cfg.log_std_gain * raw[..., 2:4]).clamp(max=MAX_LOG_GAIN)  # (..., 2)
         diag = cfg.min_std_m + (cfg.init_std_m - cfg.min_std_m) * torch.exp(log_gain)  # (..., 2)
         off = raw[..., 4:5] * diag[..., 1:]  # (..., 1) l21 = c * l22: correlation c / sqrt(1+c^2)
-        tril = torch.cat([diag[..., :1], off, diag[..., 1:]], -1)  # (..., 3)
-        return Gaussian2D(mean, tril)
+        return torch.cat([diag[..., :1], off, diag[..., 1:]], -1)  # (..., 3)

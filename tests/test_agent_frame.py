@@ -443,3 +443,22 @@ def test_an_agent_first_seen_at_the_last_observed_step_reads_no_rollout_accelera
     first_rollout = seen[-(9 - 4 - 1)]  # (1, B, N, 2): the input of the first fed-back step
     assert float(first_rollout[0, :, 2].abs().max()) < 1e-5
     assert float(first_rollout[0, :, 0].abs().max()) > 1e-3  # a known agent reads the change
+
+
+@pytest.mark.parametrize("inverse", [False, True])
+def test_rotate_is_the_rotation_matrix_product_broadcast_over_leading_steps(inverse: bool):
+    # vectors (S, B, N, 2) by per-agent rotations (B, N, 2): R v, or R^T v with inverse
+    gen = torch.Generator().manual_seed(4)
+    vectors = torch.randn(3, 2, 5, 2, generator=gen, dtype=torch.float64)
+    angle = torch.rand(2, 5, generator=gen, dtype=torch.float64) * 6.0
+    rotation = torch.stack([angle.cos(), angle.sin()], -1)
+    sign = -1.0 if inverse else 1.0
+    matrix = torch.stack(
+        [
+            torch.stack([angle.cos(), -sign * angle.sin()], -1),
+            torch.stack([sign * angle.sin(), angle.cos()], -1),
+        ],
+        -2,
+    )  # (B, N, 2, 2)
+    expected = (matrix @ vectors.unsqueeze(-1)).squeeze(-1)
+    torch.testing.assert_close(rotate(vectors, rotation, inverse), expected, rtol=0, atol=1e-12)
