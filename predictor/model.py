@@ -96,6 +96,21 @@ def scene_origin(positions: Tensor, valid: Tensor, step: int) -> Tensor:
     return total / mask.sum(dim=1).clamp(min=1.0)  # (B, 2)
 
 
+def run_lstm(
+    lstm: nn.LSTM, inputs: Tensor, state: tuple[Tensor, Tensor] | None
+) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+    """`lstm(inputs, state)` for the model's one-layer, unidirectional, time-first LSTMs
+    without nn.LSTM.forward's Python-level checks: the same op (`torch.lstm`) on the same
+    weights, so the same outputs and gradients. The rollout calls its three LSTMs once per
+    step (156 calls a training step), where those checks cost ~4 % of the step."""
+    if state is None:  # nn.LSTM's zero initial state
+        zeros = inputs.new_zeros(1, inputs.shape[1], lstm.hidden_size)
+        state = (zeros, zeros)
+    weights = [lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0]
+    output, h, c = torch.lstm(inputs, state, weights, True, 1, 0.0, lstm.training, False, False)
+    return output, (h, c)
+
+
 class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.Module):
     """Graph-RNN trajectory predictor with (learned, uniform or oracle) attention."""
 
@@ -431,8 +446,9 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
             step = torch.cat([step, role], -1)
         x_self = self.f_self(torch.cat([own[..., :2], step], -1))  # (S, B, N, E)
         state = state or RecurrentState(None, None, None)
-        o_edge, h_edge = self.g_interact(x_edge, state.edge)  # (S, E, H) over the packed edges
-        o_self, h_self = self.g_self(x_self.flatten(1, 2), state.self_loop)  # (S, B*N, H)
+        # (S, E, H) over the packed edges, (S, B*N, H) over the agents
+        o_edge, h_edge = run_lstm(self.g_interact, x_edge, state.edge)
+        o_self, h_self = run_lstm(self.g_self, x_self.flatten(1, 2), state.self_loop)
         presence = presence or self._presence(present, steps)
         theta = self._attention(
             o_self, o_edge, presence, labels, graph, self._pair_bias(steps)
@@ -441,7 +457,7 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
         attended = attended.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
         o_self = o_self.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
         node_in = torch.cat([self.f_embed(own), attended, o_self], -1)  # (S, B, N, E+2H)
-        o_node, h_node = self.g_pred(node_in.flatten(1, 2), state.node)  # (S, B*N, Hn)
+        o_node, h_node = run_lstm(self.g_pred, node_in.flatten(1, 2), state.node)  # (S, B*N, Hn)
         raw = self._raw_outputs(o_node, anchor is not None)
         raw = raw.view(num_steps, batch, num_agents, 5)  # (S, B, N, 5)
         if anchor is not None:
