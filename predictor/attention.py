@@ -55,7 +55,7 @@ class GraphAttention:
             # last term is the same for every j of row i and cancels in the softmax, so F_attn
             # need not be applied to the edge outputs (same theta, far cheaper).
             query = self.f_attn(o_self) @ self.f_attn.weight  # (S, B*N, H)
-            scores = (o_edge * graph.at_tail(query)).sum(-1)  # (S, E)
+            scores = graph.dot_with_tail(o_edge, query)  # (S, E)
             if pair_bias is not None:
                 scores = scores + pair_bias
             logits = scores * self.config.attention_gain

@@ -102,6 +102,15 @@ class Graph:
             return values.index_select(1, self.head)
         return _CompleteHeadGather.apply(values, self.head, self.num_scenes, self.num_agents)
 
+    def dot_with_tail(self, edge_values: Tensor, values: Tensor) -> Tensor:
+        """Per edge, the dot product of its values (S, E, H) with its tail's (S, B*N, H):
+        (S, E). A complete graph broadcasts each agent's values over its row of edges instead
+        of gathering them."""
+        if not self.complete:
+            return (edge_values * self.at_tail(values)).sum(-1)
+        rows = edge_values.view(values.shape[0], self.num_slots, -1, values.shape[-1])
+        return (rows * values.unsqueeze(2)).sum(-1).view(edge_values.shape[:2])
+
     def edge_present(self, present: Tensor) -> Tensor:
         """Edges whose two agents are present: (S, B, N) -> (S, E) bool."""
         flat = present.flatten(1, 2)  # (S, B*N)
@@ -223,18 +232,21 @@ def neighbour_graph(
 def segment_softmax(scores: Tensor, mask: Tensor, graph: Graph) -> Tensor:
     """Softmax of per-edge scores (S, E) over each tail's edges where `mask` (S, E) holds;
     masked edges, and every edge of a tail without an unmasked one, get 0."""
-    lowest = torch.finfo(scores.dtype).min
+    lowest, tiny = torch.finfo(scores.dtype).min, torch.finfo(scores.dtype).tiny
+    if graph.complete:  # each agent's edges are a row of (S, B*N, N-1): row-wise, no gathers
+        rows = scores.view(scores.shape[0], graph.num_slots, -1)
+        row_mask = mask.view(rows.shape)
+        peak = rows.detach().masked_fill(~row_mask, lowest).amax(-1, keepdim=True)  # stability
+        weights = torch.exp((rows - peak).masked_fill(~row_mask, -torch.inf))  # 0 where masked
+        return (weights / weights.sum(-1, keepdim=True).clamp(min=tiny)).view(scores.shape)
     masked = scores.detach().masked_fill(~mask, lowest)  # (S, E)
-    if graph.complete:  # (S, B*N) for stability only
-        peak = masked.view(scores.shape[0], graph.num_slots, -1).amax(-1)
-    else:
-        tails = graph.tail.expand_as(masked)  # (S, E)
-        peak = masked.new_full((scores.shape[0], graph.num_slots), lowest)  # (S, B*N)
-        peak = peak.scatter_reduce(1, tails, masked, "amax")
+    tails = graph.tail.expand_as(masked)  # (S, E)
+    peak = masked.new_full((scores.shape[0], graph.num_slots), lowest)  # (S, B*N)
+    peak = peak.scatter_reduce(1, tails, masked, "amax")
     shifted = (scores - graph.at_tail(peak)).masked_fill(~mask, -torch.inf)
     weights = torch.exp(shifted)  # (S, E), 0 where masked
     total = graph.sum_by_tail(weights)  # (S, B*N)
-    return weights / graph.at_tail(total).clamp(min=torch.finfo(scores.dtype).tiny)
+    return weights / graph.at_tail(total).clamp(min=tiny)
 
 
 def segment_uniform(mask: Tensor, graph: Graph, dtype: torch.dtype = torch.float32) -> Tensor:

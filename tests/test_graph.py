@@ -153,16 +153,28 @@ def test_the_complete_graphs_dense_path_equals_the_packed_one():
     for graph in (dense, packed):
         assert torch.equal(graph.edge_present(valid.transpose(0, 1)), valid.new_ones(10, 90))
     torch.testing.assert_close(
+        dense.dot_with_tail(per_edge, per_agent), packed.dot_with_tail(per_edge, per_agent)
+    )
+    torch.testing.assert_close(
         segment_softmax(scores, mask, dense), segment_softmax(scores, mask, packed)
     )
+    for graph in (dense, packed):  # the dense path's gradients against a plain check
+        assert torch.autograd.gradcheck(
+            lambda values, graph=graph: segment_softmax(values, mask, graph),
+            scores.clone().requires_grad_(),
+        )
     torch.testing.assert_close(segment_uniform(mask, dense), segment_uniform(mask, packed))
     roles = torch.tensor([[0, 1, 2, 2, 2, 2]]).expand(3, -1)
     assert torch.equal(role_balance(roles, mask, dense, 3), role_balance(roles, mask, packed, 3))
 
 
-def test_segment_softmax_equals_a_softmax_per_agent():
+@pytest.mark.parametrize("neighbours", ["knn", "all"])
+def test_segment_softmax_equals_a_softmax_per_agent(neighbours: str):
     positions, valid, _, _ = crowd(batch=2, agents=6, seed=3)
-    graph = neighbour_graph(positions, valid, 5, "knn", k=3)
+    if neighbours == "all":  # everyone present throughout: the complete graph's dense path
+        valid = torch.ones_like(valid)
+    graph = neighbour_graph(positions, valid, 5, neighbours, k=3)
+    assert graph.complete == (neighbours == "all")
     scores = torch.randn(4, graph.num_edges, generator=torch.Generator().manual_seed(0))
     mask = torch.rand(4, graph.num_edges, generator=torch.Generator().manual_seed(1)) > 0.3
     theta = segment_softmax(scores, mask, graph)
