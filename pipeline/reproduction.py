@@ -87,6 +87,7 @@ class JobOutcome:
     status: str
     seconds: float
     error: str = ""
+    kept: bool = False  # its results were copied into the results store when it finished
 
 
 # ---------------------------------------------------------------------------------- jobs
@@ -122,7 +123,10 @@ def run_job(job: Job) -> JobOutcome:
         evaluate_job(job)
     except FloatingPointError as err:
         return JobOutcome("failed", time.perf_counter() - started, str(err))
-    return JobOutcome(status, time.perf_counter() - started)
+    # into the store now, not when the invocation ends: a sitting's finished runs can be
+    # committed while others still train, and survive the invocation being cut off
+    kept = keep_result(job)
+    return JobOutcome(status, time.perf_counter() - started, kept=kept)
 
 
 def train_job(job: Job) -> str:
@@ -284,7 +288,8 @@ def execute(
         1 for job in all_jobs if job not in todo and result_dir(job) == Path(job.store_dir)
     )
     statuses = [o.status if o is not None else "skipped" for o in outcomes]
-    kept = sum(keep_result(job) for job in all_jobs)
+    kept = sum(o is not None and o.kept for o in outcomes)
+    kept += sum(keep_result(job) for job in all_jobs)  # any the workers did not keep
     return RunCounts(
         datasets_generated=data_status.count("generated"),
         datasets_reused=data_status.count("reused"),

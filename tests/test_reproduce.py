@@ -410,6 +410,29 @@ def test_interrupt_stops_at_a_safe_point_and_the_rerun_resumes(tmp_path, how, jo
         assert json.loads(result.read_text())["epochs"] == epochs
 
 
+def test_a_finished_run_is_kept_in_the_store_before_the_invocation_ends(tmp_path, monkeypatch):
+    """run_job copies its results into the store as soon as it has evaluated (so a sitting's
+    finished runs can be committed while others train); the evaluation is stubbed here, the
+    copying is the store's own (tested above)."""
+    setting = SETTING_BY_NAME["hc_go"]
+    protocol = Protocol((setting,), ("const_vel",), 1, 3)
+    store = tmp_path / "store"
+    job = run_plan.setting_jobs(protocol, setting, tmp_path / "cache", store)[0]
+
+    def evaluate(job):
+        Path(job.run_dir).mkdir(parents=True, exist_ok=True)
+        (Path(job.run_dir) / "eval.json").write_text(
+            json.dumps({"variant": job.variant, "seed": 0})
+        )
+
+    monkeypatch.setattr(reproduction, "evaluate_job", evaluate)
+    outcome = reproduction.run_job(job)
+    assert outcome.status == "trained" and outcome.kept
+    kept = Path(job.store_dir) / "eval.json"
+    assert json.loads(kept.read_text()) == {"variant": "const_vel", "seed": 0}
+    assert not reproduction.run_job(job).kept  # already in the store: not copied again
+
+
 def test_cached_results_are_checked_before_use(tmp_path):
     setting = SETTING_BY_NAME["hc_go"]
     protocol = Protocol((setting,), ("ours",), 1, 3)
