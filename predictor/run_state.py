@@ -18,6 +18,7 @@ from typing import Any
 import torch
 
 from predictor import __version__
+from predictor.compiled_step import compile_graph_step, compiler_missing
 from predictor.config import ModelConfig, TrainConfig
 from predictor.data import Batch, TrajectoryDataset, make_loader
 from predictor.evaluation import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, read_checkpoint
@@ -83,7 +84,8 @@ def make_optimizer(model: torch.nn.Module, config: TrainConfig) -> torch.optim.O
 def build_state(
     model_cfg: ModelConfig, train_cfg: TrainConfig, train_set: TrajectoryDataset
 ) -> RunState:
-    """Seeded model, optimizer and loader of a fresh run."""
+    """Seeded model, optimizer and loader of a fresh run (RunError if its graph step is to be
+    compiled and cannot be)."""
     seed_everything(train_cfg.seed)
     model = SmoothAttentionPredictor(model_cfg)
     if model_cfg.frame == "agent":  # input/output scales from the training split (checkpointed)
@@ -98,6 +100,11 @@ def build_state(
             scenes.roles,
             fit_maps=not model_cfg.attended_refit,
         )
+    if train_cfg.compile_graph_step:
+        problem = compiler_missing()
+        if problem is not None:
+            raise RunError(problem)
+        compile_graph_step(model)
     optimizer = make_optimizer(model, train_cfg)
     refit_scenes = train_set.all() if model_cfg.attended_refit else None
     loader = make_loader(

@@ -63,6 +63,7 @@ ADDED_TRAIN_FIELDS: dict[str, Any] = {
     "main_agent_weight": 1.0,
     "one_step_weight": 1.0,
     "bucket_batches": False,  # the batches of every split padded to its largest window
+    "compile_graph_step": False,
 }
 
 

@@ -93,6 +93,7 @@ TRAIN_FLAGS = (
     "main_agent_weight",
     "one_step_weight",
     "bucket_batches",
+    "compile_graph_step",
 )
 CHOICES = {  # string fields with a fixed set of values
     "mean_prior": MEAN_PRIORS,

@@ -1,0 +1,42 @@
+"""Training through a compiled graph step (`TrainConfig.compile_graph_step`).
+
+A training step is ~50-60 % fixed cost at the agent preset's batch of 4 scenes: one scene costs
+half as much as eight (`benchmarks/experiments/step_scaling.py`), so the time goes into the
+~13,000 small torch calls of a forward pass and their backward, not into arithmetic.
+`torch.compile` of the graph step (`SmoothAttentionPredictor._run`, called once per observed
+chunk and once per fed-back step) fuses them; with Dynamo's `allow_rnn` the three LSTMs are
+traced too (without it Dynamo breaks the graph at each LSTM and the step was no faster).
+Measured in benchmarks/README.md; the same mathematics to float rounding (tested).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import torch
+from torch import nn
+
+
+def compiler_missing() -> str | None:
+    """Why the graph step cannot be compiled here (inductor's CPU kernels are C++), or None."""
+    compiler = os.environ.get("CXX", "g++")
+    if shutil.which(compiler) is None:
+        return f"compile_graph_step needs a C++ compiler ({compiler!r}, or $CXX) on PATH"
+    return None
+
+
+def compile_graph_step(model: nn.Module) -> None:
+    """Route `model`'s graph steps through `torch.compile` while it trains with gradients;
+    validation, evaluation and prediction (eval mode or no grad) stay eager, so they neither
+    wait for compilation nor depend on it. The weights and checkpoints are unchanged."""
+    torch._dynamo.config.allow_rnn = True  # trace the LSTMs instead of breaking the graph
+    eager = model._run
+    compiled = torch.compile(eager, dynamic=False)
+
+    def graph_step(*args, **kwargs):
+        if model.training and torch.is_grad_enabled():
+            return compiled(*args, **kwargs)
+        return eager(*args, **kwargs)
+
+    model._run = graph_step  # an instance attribute: the model's own calls go through it

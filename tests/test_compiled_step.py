@@ -1,0 +1,93 @@
+"""The compiled graph step (`TrainConfig.compile_graph_step`): the same losses and gradients as
+the eager model on the same batch, eager outside training, and a clear refusal without a
+compiler. Compiling takes a minute or two, so one model is compiled for the whole module."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+import torch
+from test_training import TINY_MODEL, write_braking_dataset
+
+from predictor.compiled_step import compile_graph_step, compiler_missing
+from predictor.data import TrajectoryDataset, collate_batch
+from predictor.model import SmoothAttentionPredictor
+from predictor.presets import make_configs
+from predictor.run_files import RunError
+from predictor.training import train, train_step
+
+pytestmark = pytest.mark.skipif(
+    compiler_missing() is not None, reason="torch.compile's CPU kernels need a C++ compiler"
+)
+OBSERVED = 5  # write_braking_dataset's num_observed
+
+
+@pytest.fixture(scope="module")
+def batch(tmp_path_factory):
+    path = write_braking_dataset(tmp_path_factory.mktemp("compiled") / "braking.h5")
+    dataset = TrajectoryDataset(path, "train")
+    return collate_batch([dataset[i] for i in range(len(dataset))])
+
+
+def twin_models(train_cfg_changes: dict | None = None):
+    """Two equal models (same seed), the second with a compiled graph step."""
+    model_cfg, train_cfg = make_configs("ours", TINY_MODEL, **(train_cfg_changes or {}))
+    models = []
+    for _ in range(2):
+        torch.manual_seed(0)
+        models.append(SmoothAttentionPredictor(model_cfg))
+    compile_graph_step(models[1])
+    return models, train_cfg
+
+
+def test_compiled_step_has_the_eager_losses_and_gradients(batch):
+    (eager, compiled), train_cfg = twin_models()
+    # outside training the compiled model runs its eager graph step: bit for bit the same
+    compiled.eval()
+    eager.eval()
+    with torch.no_grad():
+        a, b = (
+            model(batch.positions, batch.valid, OBSERVED, batch.attention, sample=False)
+            for model in (eager, compiled)
+        )
+    assert torch.equal(a.one_step.mean, b.one_step.mean)
+    assert torch.equal(a.attention, b.attention)
+    eager.train()
+    compiled.train()
+    for step in range(2):  # the first step compiles; the second reuses it
+        terms = []
+        for model in (eager, compiled):
+            optimizer = torch.optim.Adam(model.parameters(), lr=train_cfg.lr)
+            torch.manual_seed(step)  # the same rollout samples
+            terms.append(train_step(model, optimizer, batch, OBSERVED, train_cfg))
+        for name, value in terms[0].items():
+            assert terms[1][name] == pytest.approx(value, rel=1e-4, abs=1e-6), name
+        for (name, p), q in zip(eager.named_parameters(), compiled.parameters(), strict=True):
+            assert p.grad is not None and q.grad is not None, name
+            scale = p.grad.abs().max().item()
+            assert (p.grad - q.grad).abs().max().item() <= 1e-4 * scale + 1e-7, name
+            with torch.no_grad():  # keep the twins on the same weights for the next step
+                q.copy_(p)
+
+
+def test_a_compiled_run_trains_and_its_checkpoint_loads_eager(tmp_path: Path):
+    path = write_braking_dataset(tmp_path / "braking.h5")
+    model_cfg, train_cfg = make_configs("ours", TINY_MODEL, epochs=1, compile_graph_step=True)
+    result = train(path, model_cfg, train_cfg, tmp_path / "run", progress=False)
+    assert result.epochs == 1
+    stored = torch.load(tmp_path / "run" / "last.pt", weights_only=True)
+    assert stored["train_config"]["compile_graph_step"] is True
+    model = SmoothAttentionPredictor(model_cfg)
+    model.load_state_dict(model.fill_unclamped_range(stored["model_state"]))
+
+
+def test_no_compiler_is_refused_before_anything_is_written(tmp_path: Path, monkeypatch):
+    path = write_braking_dataset(tmp_path / "braking.h5")
+    monkeypatch.setenv("CXX", "no-such-compiler-here")
+    model_cfg, train_cfg = make_configs("ours", TINY_MODEL, epochs=1, compile_graph_step=True)
+    with pytest.raises(RunError, match="needs a C.. compiler"):
+        train(path, model_cfg, train_cfg, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
+    assert dataclasses.asdict(train_cfg)["compile_graph_step"] is True
