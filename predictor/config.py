@@ -412,7 +412,7 @@ class TrainConfig:
     # has the same agent count (the synthetic scenarios: 22 cars) the batches are identical.
     bucket_batches: bool = True
     # Train through `torch.compile` of the model's graph step (SmoothAttentionPredictor._run,
-    # LSTMs traced): the same mathematics to float rounding, a ~1.6x faster agent-preset step
+    # LSTMs traced): the same mathematics to float rounding, a ~1.5x faster agent-preset step
     # on this project's CPU (benchmarks/README.md), after a one-off compilation of minutes per
     # process (inductor caches it on disk). Needs a C++ compiler; validation and evaluation stay
     # eager. Off: eager, the runs recorded so far.
