@@ -23,9 +23,9 @@ import torch
 from threadpoolctl import threadpool_limits
 from torch import Tensor
 
-from predictor.baselines import fit_ridge_cv
 from predictor.highway import CROSS_FIT_FOLDS, fold_of
 from predictor.moment_ridge import RidgeForm, cross_validated, group_statistics
+from predictor.ridge_cv import fit_ridge_cv
 
 HIGHWAY_ALPHAS: tuple[float, ...] = tuple(float(a) for a in np.logspace(-3, 4, 15))
 HIGHWAY_FOLDS = 5  # grouped cross-validation folds (fewer if there are fewer training scenes)

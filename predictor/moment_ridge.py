@@ -68,7 +68,7 @@ def fit_moment_ridge(
     elif not np.all(weights > 0):
         raise ValueError("fit_moment_ridge: sample weights must be positive")
     stats = group_statistics(mean, moment, target, weights, inverse, len(names))
-    # one BLAS thread, as fit_ridge_cv (predictor.baselines): the solves are small (15 alphas
+    # one BLAS thread, as fit_ridge_cv (predictor.ridge_cv): the solves are small (15 alphas
     # x 5 folds per map), and OpenBLAS's default threads compete with the trainings beside
     # it. On 2 cores with two trainings running, a refit of the agent preset on Halting Car
     # v1's 52 training scenes took 7.5-9.1 s with them and 5.9-6.6 s with one
