@@ -112,6 +112,10 @@ class Protocol:
     compare_variants: tuple[str, ...] = ("ours",)  # trained variants run under compare_presets
     # (preset, setting names) pairs that limit a compared preset to those settings (others: all)
     compare_only: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    # train new runs through a compiled graph step (TrainConfig.compile_graph_step): how runs
+    # are computed, not what, so their keys and rows are the eager runs'; a resumed run keeps
+    # the mode it began with, and each eval.json records its mode (graph_step)
+    compile_graph_step: bool = False
 
     def presets_compared_on(self, setting: str) -> tuple[str, ...]:
         """The compared presets run on a setting: all of them unless `compare_only` limits one."""

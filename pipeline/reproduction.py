@@ -135,7 +135,9 @@ def train_job(job: Job) -> str:
 
     directory = Path(job.run_dir)
     resume = (directory / "last.pt").is_file()
-    model_cfg, train_cfg = run_configs(job.variant, job.seed, job.epochs, job.preset)
+    # a resumed run keeps the graph step it began with, so its eval.json names one mode
+    compiled = resumed_graph_step(directory) if resume else job.compile_graph_step
+    model_cfg, train_cfg = run_configs(job.variant, job.seed, job.epochs, job.preset, compiled)
     train(
         job.data_path,
         model_cfg,
@@ -177,6 +179,7 @@ def evaluate_job(job: Job) -> None:
             "checkpoint": "best.pt",
             "best_epoch": evaluation.source.epoch,
             "train_seconds": _train_seconds(directory / "metrics.jsonl"),
+            "graph_step": stored_graph_step(directory),
         }
     meta, predictions = evaluation.meta, evaluation.predictions
     info = {
@@ -198,6 +201,21 @@ def evaluate_job(job: Job) -> None:
     with atomic_output(directory / "eval.json") as temp:
         text = json.dumps(json_safe({**info, **evaluation.scores}), indent=1, allow_nan=False)
         temp.write_text(text + "\n")
+
+
+def resumed_graph_step(run: Path) -> bool:
+    """Whether the checkpoint a run resumes from (last.pt) trained with a compiled graph step;
+    CheckpointError for an unreadable one, as resuming it would raise."""
+    from predictor.evaluation import read_checkpoint
+
+    return bool(read_checkpoint(run / "last.pt")["train_config"].get("compile_graph_step", False))
+
+
+def stored_graph_step(run: Path) -> str:
+    """How the run in `run` trains its graph step, "compiled" or "eager", from its config.json
+    (`TrainConfig.compile_graph_step`; runs from before the switch have none: eager)."""
+    stored = json.loads((run / "config.json").read_text())["train"]
+    return "compiled" if stored.get("compile_graph_step", False) else "eager"
 
 
 def _train_seconds(metrics: Path) -> float:

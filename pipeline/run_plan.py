@@ -66,6 +66,7 @@ class Job:
     store_dir: str = ""  # where the results store keeps its eval.json (and scenes.npz); "" none
     preset: str = "paper"  # predictor.presets.PRESETS
     compared: bool = False  # run under one of Protocol.compare_presets, not Protocol.preset
+    compile_graph_step: bool = False  # train a new run through torch.compile (not in the key)
 
     @property
     def record_variant(self) -> str:
@@ -96,11 +97,22 @@ def data_spec(protocol: Protocol, setting: Setting) -> DataSpec:
     )
 
 
-def run_configs(variant: str, seed: int, epochs: int, preset: str = "paper") -> tuple:
-    """(ModelConfig, TrainConfig) of a run: the preset's configuration, one torch thread."""
+def run_configs(
+    variant: str, seed: int, epochs: int, preset: str = "paper", compile_graph_step: bool = False
+) -> tuple:
+    """(ModelConfig, TrainConfig) of a run: the preset's configuration, one torch thread, the
+    graph step compiled or not (`predictor.stored_config.EXECUTION_FIELDS`: not in the key)."""
     from predictor.presets import make_configs
 
-    return make_configs(variant, None, preset=preset, seed=seed, epochs=epochs, threads=RUN_THREADS)
+    return make_configs(
+        variant,
+        None,
+        preset=preset,
+        seed=seed,
+        epochs=epochs,
+        threads=RUN_THREADS,
+        compile_graph_step=compile_graph_step,
+    )
 
 
 def data_path(out_dir: Path, spec: DataSpec) -> Path:
@@ -154,6 +166,7 @@ def setting_jobs(
                     kept,
                     preset,
                     compared,
+                    protocol.compile_graph_step,
                 )
             )
     return jobs

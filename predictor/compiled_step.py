@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import os
 import shutil
+from typing import TYPE_CHECKING
 
-import torch
-from torch import nn
+if TYPE_CHECKING:  # torch is imported where it is used: command lines check compiler_missing
+    from torch import nn
 
 
 def compiler_missing() -> str | None:
@@ -30,6 +31,8 @@ def compile_graph_step(model: nn.Module) -> None:
     """Route `model`'s graph steps through `torch.compile` while it trains with gradients;
     validation, evaluation and prediction (eval mode or no grad) stay eager, so they neither
     wait for compilation nor depend on it. The weights and checkpoints are unchanged."""
+    import torch
+
     torch._dynamo.config.allow_rnn = True  # trace the LSTMs instead of breaking the graph
     eager = model._run
     compiled = torch.compile(eager, dynamic=False)

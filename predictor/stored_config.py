@@ -67,13 +67,24 @@ ADDED_TRAIN_FIELDS: dict[str, Any] = {
 }
 
 
+# TrainConfig fields that change how a run is computed, not what: the same mathematics to float
+# rounding (tested), so they are not part of a run's key, and a result row may hold runs of
+# either value (the reproduction records each run's in its eval.json)
+EXECUTION_FIELDS = ("compile_graph_step",)
+
+
 def config_key(config: ModelConfig | TrainConfig) -> dict[str, Any]:
     """`config_to_dict` without the added fields (`ADDED_MODEL_FIELDS`, `ADDED_TRAIN_FIELDS`)
-    that hold their former values: what identifies a run's configuration (cache keys), so a
-    later version that adds a switch leaves the keys of the runs that do not use it unchanged."""
+    that hold their former values and without `EXECUTION_FIELDS`: what identifies a run's
+    configuration (cache keys), so a later version that adds a switch leaves the keys of the
+    runs that do not use it unchanged."""
     added = ADDED_MODEL_FIELDS if isinstance(config, ModelConfig) else ADDED_TRAIN_FIELDS
     values = config_to_dict(config)
-    return {k: v for k, v in values.items() if k not in added or added[k] != v}
+    return {
+        k: v
+        for k, v in values.items()
+        if (k not in added or added[k] != v) and k not in EXECUTION_FIELDS
+    }
 
 
 def model_config_from_dict(values: dict[str, Any]) -> ModelConfig:

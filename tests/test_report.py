@@ -349,6 +349,18 @@ def test_code_line_counts_runs_per_commit():
     assert RunRecord.from_eval("hc_go", "ours", 0, fake_eval(*ADE_FDE)).code is None
 
 
+def test_graph_step_line_counts_the_trained_runs_modes():
+    trained = {**fake_eval(*ADE_FDE), "best_epoch": 3}
+    compiled = RunRecord.from_eval("hc_go", "ours", 1, {**trained, "graph_step": "compiled"})
+    assert compiled.graph_step == "compiled" and compiled.to_json()["graph_step"] == "compiled"
+    older = RunRecord.from_eval("hc_go", "ours", 0, trained)  # from before the switch: eager
+    baseline = RunRecord.from_eval("hc_go", "const_vel", 0, fake_eval(*ADE_FDE))
+    assert older.graph_step == "eager" and baseline.graph_step is None
+    line = markdown.graph_step_line([older, compiled, baseline, older])
+    assert line.endswith("one row): compiled (1 runs); eager (2 runs)")
+    assert markdown.graph_step_line([baseline]).endswith("no trained runs")
+
+
 @pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
 def test_code_version_is_the_checkouts_commit_and_says_dirty(tmp_path, monkeypatch):
     for name in [n for n in os.environ if n.startswith("GIT_")]:  # e.g. set by a git hook

@@ -185,6 +185,11 @@ def test_results_json_has_every_setting_variant_and_seed(quick):
             )
             assert seeds == ([0] if variant in BASELINE_VARIANTS else [0, 1])
     assert document["machine"]["cores"] >= 1 and document["machine"]["torch"]
+    modes = {r["graph_step"] for r in runs if r["variant"] not in BASELINE_VARIANTS}
+    assert modes == {"eager"} and not document["protocol"]["compile_graph_step"]
+    assert {r["graph_step"] for r in runs if r["variant"] in BASELINE_VARIANTS} == {None}
+    trained = len(runs) - len(SETTINGS) * len(BASELINE_VARIANTS)
+    assert f"rounding, one row): eager ({trained} runs)" in quick["results"].read_text()
 
 
 def test_results_json_aggregates_match_the_runs(quick):
@@ -258,6 +263,7 @@ def test_existing_report_needs_overwrite(quick):
         (["--compare-presets", "agent_zero_cv,agent_zero_cv@main"], "names 'agent_zero_cv' twice"),
         (["--compare-presets", "paper@dm_r0.5"], "unknown setting 'dm_r0.5'"),
         (["--compare-presets", "agent", "--compare-variants", "ridge"], "compared variant 'ridge'"),
+        (["--compile-graph-step", "maybe"], "invalid choice: 'maybe'"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, args, message):
@@ -266,6 +272,16 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, args, message):
     assert exit_.value.code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err
+    assert not (tmp_path / "c").exists()
+
+
+def test_a_compiled_graph_step_without_a_compiler_is_one_line_exit_2(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("CXX", "no-such-compiler-here")
+    with pytest.raises(SystemExit) as exit_:
+        reproduce.main(["--out-dir", str(tmp_path / "c"), "--compile-graph-step", "yes"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "needs a C++ compiler ('no-such-compiler-here'" in err
     assert not (tmp_path / "c").exists()
 
 
@@ -281,6 +297,9 @@ def test_no_arguments_mean_the_agent_preset_with_the_paper_preset_on_the_main_se
     }
     paper = reproduce.protocol_from_args(reproduce.parse_args(["--preset", "paper"]))
     assert paper.preset == "paper" and paper.compare_presets == ()
+    assert not default.compile_graph_step
+    compiled = reproduce.parse_args(["--compile-graph-step", "yes"])
+    assert reproduce.protocol_from_args(compiled).compile_graph_step
     quick = reproduce.protocol_from_args(reproduce.parse_args(["--quick"]))
     assert (quick.preset, quick.compare_presets, quick.seeds) == ("agent", ("paper",), 2)
     none = reproduce.protocol_from_args(reproduce.parse_args(["--compare-presets", ""]))

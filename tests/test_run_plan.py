@@ -194,3 +194,41 @@ def test_cache_keys_leave_out_added_switches_at_their_former_values():
     assert "bucket_batches" in config_key(train)  # on here: not its former value (off)
     radius, _ = make_configs("ours", {"neighbours": "radius"}, preset="paper")
     assert config_key(radius)["neighbours"] == "radius"  # a switch in use stays in the key
+
+
+def test_a_compiled_protocol_plans_the_eager_runs_and_a_resumed_run_keeps_its_mode(
+    tmp_path, monkeypatch
+):
+    """`Protocol.compile_graph_step` changes how new runs train, not their keys; a run resumed
+    from its last.pt trains on in the mode its config.json names (training is stubbed here:
+    test_compiled_step.py trains compiled for real)."""
+    import torch
+
+    import predictor.training
+    from predictor.evaluation import CHECKPOINT_FORMAT, CHECKPOINT_VERSION
+
+    setting = SETTING_BY_NAME["hc_go"]
+    eager = Protocol((setting,), ("ours",), 2, 3)
+    compiled = dataclasses.replace(eager, compile_graph_step=True)
+    jobs = run_plan.setting_jobs(compiled, setting, tmp_path)
+    assert [j.run_dir for j in jobs] == [
+        j.run_dir for j in run_plan.setting_jobs(eager, setting, tmp_path)
+    ]
+    assert all(j.compile_graph_step for j in jobs)
+    asked = []
+    monkeypatch.setattr(
+        predictor.training, "train", lambda data, model, train, out, **kw: asked.append(train)
+    )
+    new, begun_eager = jobs
+    Path(begun_eager.run_dir).mkdir(parents=True)
+    begun = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "train_config": {}}
+    torch.save(begun, Path(begun_eager.run_dir) / "last.pt")  # an eager run's, before the switch
+    (Path(begun_eager.run_dir) / "config.json").write_text(json.dumps({"train": {}}))
+    assert reproduction.train_job(new) == "trained"
+    assert reproduction.train_job(begun_eager) == "resumed"
+    assert [cfg.compile_graph_step for cfg in asked] == [True, False]
+    assert reproduction.stored_graph_step(Path(begun_eager.run_dir)) == "eager"
+    (Path(begun_eager.run_dir) / "config.json").write_text(
+        json.dumps({"train": {"compile_graph_step": True}})
+    )
+    assert reproduction.stored_graph_step(Path(begun_eager.run_dir)) == "compiled"

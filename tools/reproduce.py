@@ -60,6 +60,14 @@ ran jobs (date, command, wall seconds), for the report's wall time: in the resul
 it is committed with the results), else in the cache. Delete the cache after changing how
 experts, model or training behave: the keys hash configurations, not code.
 
+Compiled graph step (`--compile-graph-step yes`, default no): new runs train through
+torch.compile of the model's graph step (TrainConfig.compile_graph_step; ~1.35x an agent-preset
+epoch, a first compilation of ~1 min per process with inductor's disk cache warm, up to ~12
+min cold; needs a C++ compiler). The same mathematics to float rounding, so a compiled run
+has the eager run's key and row: runs already stored are reused whichever mode trained them,
+a resumed run keeps the mode it began with, and each eval.json records its `graph_step`,
+which the report counts.
+
 Backends (`--backend`): `local` (default) runs `--jobs` processes here; `ray` runs every job
 (and every missing dataset) as a Ray task of one CPU on the cluster at `--address` (default
 $RAY_ADDRESS, else a local Ray instance with `--jobs` CPUs), gathered as they finish, with the
@@ -114,6 +122,7 @@ from pipeline.protocol import (
 from pipeline.ray_backend import RayUnavailableError
 from pipeline.reproduction import reproduce
 from pipeline.result_store import DEFAULT_STORE
+from predictor.compiled_step import compiler_missing
 from predictor.presets import PRESETS
 
 
@@ -164,6 +173,15 @@ def parse_args(argv: list[str] | None = None):
     )
     parser.add_argument(
         "--jobs", type=int, default=2, help="parallel processes, one torch thread each (default 2)"
+    )
+    parser.add_argument(
+        "--compile-graph-step",
+        choices=("yes", "no"),
+        default="no",
+        help="train new runs through torch.compile of the graph step (TrainConfig."
+        "compile_graph_step, ~1.35x an agent-preset epoch; needs a C++ compiler): the same "
+        "mathematics to float rounding, so the same run keys and rows as eager runs; each "
+        "eval.json records its mode and a resumed run keeps its own (default no)",
     )
     parser.add_argument(
         "--backend",
@@ -247,6 +265,8 @@ def protocol_from_args(args) -> Protocol:
     for flag, value in (("--seeds", seeds), ("--epochs", epochs), ("--jobs", args.jobs)):
         if value < 1:
             fail(f"{flag} must be at least 1, got {value}")
+    if args.compile_graph_step == "yes" and (why := compiler_missing()) is not None:
+        fail(f"--compile-graph-step yes: {why}")
     return Protocol(
         tuple(SETTING_BY_NAME[n] for n in names),
         variants,
@@ -259,6 +279,7 @@ def protocol_from_args(args) -> Protocol:
         presets,
         compared,
         compare_only,
+        args.compile_graph_step == "yes",
     )
 
 

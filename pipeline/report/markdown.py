@@ -274,6 +274,16 @@ def code_line(runs: Sequence) -> str:
     return "- Code (git commit of each run's evaluation): " + ("; ".join(items) or "no runs")
 
 
+def graph_step_line(runs: Sequence) -> str:
+    """Markdown bullet of how many trained runs computed their graph step eager or compiled."""
+    counts = Counter(run.graph_step for run in runs if run.graph_step is not None)
+    items = [f"{mode} ({counts[mode]} runs)" for mode in sorted(counts)]
+    return (
+        "- Graph step of the trained runs (`--compile-graph-step`; the same mathematics to float "
+        "rounding, one row): " + ("; ".join(items) or "no trained runs")
+    )
+
+
 def settings_table(report: Report) -> str:
     """Per setting: scenario, cases, split sizes, median training time per run, dataset file."""
     rows = []
@@ -357,6 +367,7 @@ def how_produced(report: Report) -> str:
             "(one thread each)",
             history_line(source.history),
             code_line(report.results.runs),
+            graph_step_line(report.results.runs),
             f"- Machine: {machine.cores} cores, {machine.cpu_model}; torch "
             f"{machine.torch}, {machine.torch_threads_per_job} torch thread per job, "
             f"{machine.jobs} parallel jobs; Python {machine.python}",

@@ -102,6 +102,9 @@ class RunRecord:
     train_seconds: float | None = None
     best_epoch: int | None = None
     code: str | None = None  # commit of the code that evaluated it (None: not recorded)
+    # how a trained run computed its graph step, "eager" or "compiled" (eval.json's graph_step;
+    # trained runs from before the switch record none and were eager); None for a baseline
+    graph_step: str | None = None
 
     @classmethod
     def from_eval(cls, setting: str, variant: str, seed: int, result: dict) -> RunRecord:
@@ -133,6 +136,7 @@ class RunRecord:
             result.get("train_seconds"),
             result.get("best_epoch"),
             result.get("code"),
+            result.get("graph_step", "eager" if result.get("best_epoch") is not None else None),
         )
 
     def to_json(self) -> dict:
@@ -145,6 +149,7 @@ class RunRecord:
             "train_seconds": self.train_seconds,
             "best_epoch": self.best_epoch,
             "code": self.code,
+            "graph_step": self.graph_step,
             **nested(self.values),
         }
 
