@@ -83,11 +83,16 @@ train_seconds, 90 epochs, results/): under the agent preset the variants with th
 (ours, nonsmooth, average, correct) cost ~0.14 s per training scene and epoch (26-35 runs each;
 fastest ~0.08-0.12 s; each also spent ~1 min on a first highway fit that training no longer
 makes), s_attn ~0.045 s; the paper preset's Ours ~0.29 s (4 runs, 3 jobs on 2 cores). A
-200-epoch Ours run thus takes ~25 min on a ratio-0.3 setting (52 training scenes) and ~50 min on
-dm_30+100 (104). The seven settings hold 378 training scenes in all, so the full protocol (350
-runs of the agent preset, 20 of the paper preset) is ~145 job-hours: ~3 days with --jobs 2 here,
-which is why the published report (docs/RESULTS.md) has 5 seeds and 90 epochs, gathered over
-several sittings through the results store. `--quick` took 8 min beside two trainings.
+200-epoch Ours run would thus take ~25 min on a ratio-0.3 setting (52 training scenes); the
+200-epoch runs recorded on dm_r0.3 (results/, trained beside working sessions' tests and
+benchmarks) took 3,325-4,178 s for Ours and 1,851-3,579 s for the other variants with the
+sequence loss (0.18-0.40 s per scene and epoch: epochs of 9-14 s with only two trainings on
+the machine, 20-40 s with a test run beside). The seven settings hold 378 training scenes in
+all, so the full protocol (350 runs of the agent preset, 20 of the paper preset) is ~145
+job-hours at the 90-epoch rate and up to ~2.5x that on a busy machine: days to weeks with
+--jobs 2 here, which is why the published report (docs/RESULTS.md) has 5 seeds and 90 epochs
+and the 200-epoch protocol is gathered over sittings through the results store
+(results/README.md). `--quick` took 8 min beside two trainings.
 """
 
 from __future__ import annotations
