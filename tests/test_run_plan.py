@@ -200,7 +200,7 @@ def test_a_compiled_protocol_plans_the_eager_runs_and_a_resumed_run_keeps_its_mo
     tmp_path, monkeypatch
 ):
     """`Protocol.compile_graph_step` changes how new runs train, not their keys; a run resumed
-    from its last.pt trains on in the mode its config.json names (training is stubbed here:
+    from its last.pt trains on in that checkpoint's mode (training is stubbed here:
     test_compiled_step.py trains compiled for real)."""
     import torch
 

@@ -61,12 +61,12 @@ it is committed with the results), else in the cache. Delete the cache after cha
 experts, model or training behave: the keys hash configurations, not code.
 
 Compiled graph step (`--compile-graph-step yes`, default no): new runs train through
-torch.compile of the model's graph step (TrainConfig.compile_graph_step; ~1.35x an agent-preset
-epoch, a first compilation of ~1 min per process with inductor's disk cache warm, up to ~12
-min cold; needs a C++ compiler). The same mathematics to float rounding, so a compiled run
-has the eager run's key and row: runs already stored are reused whichever mode trained them,
-a resumed run keeps the mode it began with, and each eval.json records its `graph_step`,
-which the report counts.
+torch.compile of the model's graph step (TrainConfig.compile_graph_step; 1.35-1.7x an
+agent-preset epoch, after a first compilation of ~1 min per process and variant with
+inductor's disk cache warm, up to ~12 min cold; needs a C++ compiler). The same mathematics
+to float rounding, so a compiled run has the eager run's key and row: runs already stored are
+reused whichever mode trained them, a resumed run keeps the mode it began with, and each
+eval.json records its `graph_step`, which the report counts.
 
 Backends (`--backend`): `local` (default) runs `--jobs` processes here; `ray` runs every job
 (and every missing dataset) as a Ray task of one CPU on the cluster at `--address` (default
