@@ -2,9 +2,10 @@
 changes, and the closed-form fits (at normalisation, and `refit_attended` every epoch).
 
 `HighwayMaps` is a mixin of `SmoothAttentionPredictor` (predictor.model), which owns the
-buffers it reads (`highway_weight`, `attended_weight`, ... registered in its constructor) and
-the passes it calls (`_prepare`, `_block`); the arithmetic itself is in predictor.highway
-(features, readings) and predictor.highway_fit (the fits).
+passes it calls (`_prepare`, `_block`); the maps' buffers (`highway_weight`,
+`attended_weight`, ...) are registered here (`_register_maps`, called by the model's
+constructor). The arithmetic itself is in predictor.highway (features, readings) and
+predictor.highway_fit (the fits).
 """
 
 from __future__ import annotations
@@ -47,6 +48,33 @@ class HighwayMaps:
     """The highway part of `SmoothAttentionPredictor` (see the module docstring)."""
 
     config: ModelConfig
+
+    def _register_maps(self) -> None:
+        """Register the highway's maps (buffers; a learnt attended map is a parameter), zero
+        until fitted with the normalisation (`_fit_highway`) or, with attended_refit, at every
+        epoch start (`refit_attended`)."""
+        cfg = self.config
+        if cfg.highway_steps:
+            features = 4 * cfg.highway_steps - 3  # velocities and their differences
+            shape = (self.num_maps, features, cfg.highway_horizon)
+            self.register_buffer("highway_weight", torch.zeros(*shape, 2))
+            self.register_buffer("highway_bias", torch.zeros(shape[0], shape[2], 2))
+            folds = CROSS_FIT_FOLDS  # the maps that training scenes use (cross-fitting)
+            self.register_buffer("highway_fold_weight", torch.zeros(folds, *shape, 2))
+            self.register_buffer("highway_fold_bias", torch.zeros(folds, shape[0], shape[2], 2))
+            # each map's output range (predictor.highway_fit.change_bounds): zero until fitted
+            self.register_buffer("highway_low", torch.zeros(shape[0], shape[2], 2))
+            self.register_buffer("highway_high", torch.zeros(shape[0], shape[2], 2))
+        if cfg.highway_attended:  # its edge statistics are fitted with the normalisation
+            features = 2 * cfg.highway_steps + 2  # relative position and velocities
+            self.register_buffer("attended_mean", torch.zeros(features))
+            self.register_buffer("attended_std", torch.ones(features))
+            shape = (self.num_maps, features, cfg.highway_horizon, 2)
+            if cfg.attended_refit:  # refitted in closed form every epoch (refit_attended)
+                self.register_buffer("attended_weight", torch.zeros(shape))
+                self.register_buffer("attended_fold_weight", torch.zeros(CROSS_FIT_FOLDS, *shape))
+            else:  # learnt by gradient
+                self.attended_weight = torch.nn.Parameter(torch.zeros(shape))
 
     @property
     def num_maps(self) -> int:

@@ -3,9 +3,10 @@ kept as buffers in the checkpoint) or the paper model's car constants, and the s
 agent-frame inputs and edge embeddings that use them.
 
 `InputStatistics` is a mixin of `SmoothAttentionPredictor` (predictor.model), which owns the
-buffers it writes (`input_mean`, `input_std`, `offset_std`, `anchor_std`, registered in its
-constructor), the layers it reads (`f_interact`) and the pass it calls (`_prepare`); the
-highway's fit (`_fit_highway`) is in predictor.highway_maps.
+layers it reads (`f_interact`) and the pass it calls (`_prepare`); the buffers it writes
+(`input_mean`, `input_std`, `offset_std`, `anchor_std`) are registered here
+(`_register_statistics`, called by the model's constructor). The highway's fit
+(`_fit_highway`) is in predictor.highway_maps.
 """
 
 from __future__ import annotations
@@ -19,12 +20,26 @@ from predictor.config import ModelConfig
 from predictor.graph import Graph
 from predictor.highway_maps import MIN_STAT_STD
 
+# agent-frame features, 2 each: own position, own velocity, relative position, relative velocity
+NUM_FEATURES = 8
+
 
 class InputStatistics:
     """Input standardisation and scales of `SmoothAttentionPredictor` (see the module
     docstring)."""
 
     config: ModelConfig
+
+    def _register_statistics(self) -> None:
+        """Register the agent frame's input statistics and scales as buffers (kept in the
+        checkpoint), at the paper model's car constants until `fit_normalisation`."""
+        if self.config.frame != "agent":  # the scene frame uses the config's constants
+            return
+        self.register_buffer("input_mean", torch.zeros(NUM_FEATURES))
+        self.register_buffer("input_std", torch.ones(NUM_FEATURES))
+        self.register_buffer("offset_std", torch.ones(2))
+        self.register_buffer("anchor_std", torch.ones(2))
+        self._default_normalisation()
 
     def _agent_inputs(
         self, pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFrame, graph: Graph

@@ -11,9 +11,10 @@ A directed graph with self-loops over the N agents of a scene (the paper's: comp
 Graph (`ModelConfig.neighbours`, `predictor.graph`): every other agent ("all", the paper's),
 those within a radius, or the k nearest, chosen once per window (each edge keeps an LSTM state
 across the steps) and only between agents that are present in it. The edges are packed into
-one list for the batch, so the edge LSTM and the attention cost O(edges): a segment softmax
-over each agent's edges and an index_add for the attended sum; an agent without a present
-neighbour attends to nothing (sum 0). The attention is returned in the layout (..., N, N-1)
+one list for the batch, so the edge LSTM and the attention cost O(edges): a softmax over each
+agent's edges and a sum of them (an index_add over a radius or k-nearest graph; over a complete
+graph each agent's N-1 edges are one contiguous row, reduced as such); an agent without a
+present neighbour attends to nothing (sum 0). The attention is returned in the layout (..., N, N-1)
 (zero off the graph), which the losses and metrics read.
 
 Time indexing: the step at time t (t = 0 .. T-2) reads the states at t (and t-1 for the
@@ -59,20 +60,15 @@ are masked out of the attention while absent.
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor, nn
 
 from predictor.agent_frame import (
-    agent_frames,
     rotate,
     rotate_tril,
 )
 from predictor.attention import GraphAttention, Presence
 from predictor.config import ModelConfig
 from predictor.graph import Graph, neighbour_graph
-from predictor.highway import (
-    CROSS_FIT_FOLDS,
-)
 from predictor.highway_maps import HighwayMaps
 from predictor.input_statistics import InputStatistics
 from predictor.outputs import (
@@ -83,17 +79,9 @@ from predictor.outputs import (
     StepOutputs,
 )
 from predictor.pass_inputs import PassInputs as _Steps
+from predictor.pass_inputs import prepare_pass
 
 MAX_LOG_GAIN = 12.0  # cap of log(std excess / initial excess): stds stay finite
-# agent-frame features, 2 each: own position, own velocity, relative position, relative velocity
-NUM_FEATURES = 8
-
-
-def scene_origin(positions: Tensor, valid: Tensor, step: int) -> Tensor:
-    """Mean position [m] of the agents present at `step` (zeros if none): (B, T, N, 2) -> (B, 2)."""
-    mask = valid[:, step].unsqueeze(-1).to(positions.dtype)  # (B, N, 1)
-    total = (positions[:, step] * mask).sum(dim=1)  # (B, 2)
-    return total / mask.sum(dim=1).clamp(min=1.0)  # (B, 2)
 
 
 def run_lstm(
@@ -133,35 +121,8 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
         self.f_self = nn.Sequential(nn.Linear(4 + accel + roles, emb), nn.ReLU())
         edge_in = 6 if config.edge_velocity else 4
         self.f_interact = nn.Sequential(nn.Linear(edge_in, emb), nn.ReLU())
-        if config.frame == "agent":  # input normalisation; fit_normalisation sets it from data
-            self.register_buffer("input_mean", torch.zeros(NUM_FEATURES))
-            self.register_buffer("input_std", torch.ones(NUM_FEATURES))
-            self.register_buffer("offset_std", torch.ones(2))
-            self.register_buffer("anchor_std", torch.ones(2))
-            self._default_normalisation()
-        if config.highway_steps:  # fitted with the normalisation (predictor.highway)
-            features = 4 * config.highway_steps - 3  # velocities and their differences
-            shape = (self.num_maps, features, config.highway_horizon)
-            self.register_buffer("highway_weight", torch.zeros(*shape, 2))
-            self.register_buffer("highway_bias", torch.zeros(shape[0], shape[2], 2))
-            folds = CROSS_FIT_FOLDS  # the maps that training scenes use (cross-fitting)
-            self.register_buffer("highway_fold_weight", torch.zeros(folds, *shape, 2))
-            self.register_buffer("highway_fold_bias", torch.zeros(folds, shape[0], shape[2], 2))
-            # each map's output range (predictor.highway_fit.change_bounds): zero until fitted
-            self.register_buffer("highway_low", torch.zeros(shape[0], shape[2], 2))
-            self.register_buffer("highway_high", torch.zeros(shape[0], shape[2], 2))
-        # the attended highway: statistics fitted with the normalisation; the map learnt by
-        # gradient, or (attended_refit) refitted in closed form at every epoch start
-        if config.highway_attended:
-            features = 2 * config.highway_steps + 2  # relative position and velocities
-            self.register_buffer("attended_mean", torch.zeros(features))
-            self.register_buffer("attended_std", torch.ones(features))
-            shape = (self.num_maps, features, config.highway_horizon, 2)
-            if config.attended_refit:  # refitted in closed form every epoch (refit_attended)
-                self.register_buffer("attended_weight", torch.zeros(shape))
-                self.register_buffer("attended_fold_weight", torch.zeros(CROSS_FIT_FOLDS, *shape))
-            else:
-                self.attended_weight = nn.Parameter(torch.zeros(shape))
+        self._register_statistics()  # input normalisation (predictor.input_statistics)
+        self._register_maps()  # the highway's maps (predictor.highway_maps)
         self.g_self = nn.LSTM(emb, hid)
         self.g_interact = nn.LSTM(emb, hid)
         learned = config.attention_mode == "learned"
@@ -263,48 +224,10 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
         roles: Tensor | None = None,
         graph_steps: int | None = None,
     ) -> _Steps:
-        """Time-first inputs of a pass, and the pass's neighbour graph, chosen from the first
-        `graph_steps` steps (None: all; `predict` reads only the observed ones)."""
-        num_steps = positions.shape[1]
-        if not 1 <= num_observed < num_steps:
-            raise ValueError(f"num_observed must be in [1, {num_steps - 1}], got {num_observed}")
-        if self.config.attention_mode == "oracle" and labels is None:
-            raise ValueError("oracle attention needs attention labels")
-        role_inputs = None
-        if self.config.num_roles > 0:
-            if roles is None:
-                raise ValueError("this model reads agent roles; the data has none")
-            if int(roles.max()) >= self.config.num_roles or int(roles.min()) < 0:
-                raise ValueError(f"agent roles must be in [0, {self.config.num_roles - 1}]")
-            role_inputs = F.one_hot(roles.long(), self.config.num_roles).to(positions.dtype)
-        pos = positions.transpose(0, 1)  # (T, B, N, 2)
-        present = valid.transpose(0, 1)  # (T, B, N)
-        prev_pos = torch.cat([pos[:1], pos[:-1]], 0)  # (T, B, N, 2)
-        prev_present = torch.cat([present[:1], present[:-1]], 0)  # (T, B, N)
-        prev_pos = torch.where(prev_present.unsqueeze(-1), prev_pos, pos)  # (T, B, N, 2)
-        # two steps back where the agent was present then and since; else the position that
-        # makes the acceleration p^t - 2 p^{t-1} + p^{t-2} zero
-        prev2_pos = torch.cat([prev_pos[:1], prev_pos[:-1]], 0)  # (T, B, N, 2)
-        absent = torch.zeros_like(present[:2])
-        before = torch.cat([absent[:1], present[:-1]], 0)  # (T, B, N) present at t-1
-        before2 = torch.cat([absent, present[:-2]], 0)  # (T, B, N) present at t-2
-        known = (before2 & before & present).unsqueeze(-1)
-        prev2_pos = torch.where(known, prev2_pos, 2 * prev_pos - pos)  # (T, B, N, 2)
-        return _Steps(
-            pos=pos,
-            prev_pos=prev_pos,
-            prev2_pos=prev2_pos,
-            present=present,
-            labels=None if labels is None else labels.transpose(0, 1).long(),  # (T, B, N)
-            origin=scene_origin(positions, valid, num_observed - 1),  # (B, 2)
-            num_observed=num_observed,
-            frame=agent_frames(positions, valid, num_observed)
-            if self.config.frame == "agent"
-            else None,
-            roles=role_inputs if self.config.role_input else None,
-            role_index=None if role_inputs is None else roles.long(),
-            graph=self._graph(positions[:, :graph_steps], valid[:, :graph_steps], num_observed),
-        )
+        """Time-first inputs of a pass (`prepare_pass`), and the pass's neighbour graph, chosen
+        from the first `graph_steps` steps (None: all; `predict` reads only the observed ones)."""
+        graph = self._graph(positions[:, :graph_steps], valid[:, :graph_steps], num_observed)
+        return prepare_pass(self.config, positions, valid, num_observed, labels, roles, graph)
 
     def _graph(self, positions: Tensor, valid: Tensor, num_observed: int) -> Graph:
         """The neighbour graph of the configured kind (predictor.graph) over (B, T', N) steps."""
