@@ -226,8 +226,9 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
     ) -> _Steps:
         """Time-first inputs of a pass (`prepare_pass`), and the pass's neighbour graph, chosen
         from the first `graph_steps` steps (None: all; `predict` reads only the observed ones)."""
-        graph = self._graph(positions[:, :graph_steps], valid[:, :graph_steps], num_observed)
-        return prepare_pass(self.config, positions, valid, num_observed, labels, roles, graph)
+        steps = prepare_pass(self.config, positions, valid, num_observed, labels, roles)
+        steps.graph = self._graph(positions[:, :graph_steps], valid[:, :graph_steps], num_observed)
+        return steps
 
     def _graph(self, positions: Tensor, valid: Tensor, num_observed: int) -> Graph:
         """The neighbour graph of the configured kind (predictor.graph) over (B, T', N) steps."""

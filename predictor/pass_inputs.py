@@ -48,10 +48,10 @@ def prepare_pass(
     num_observed: int,
     labels: Tensor | None,
     roles: Tensor | None,
-    graph: Graph,
 ) -> PassInputs:
-    """A batch (B, T, N, .) as the time-first inputs of a pass of a model with `config` over
-    `graph`, after checking that the batch has what the model reads (a ValueError if not).
+    """A batch (B, T, N, .) as the time-first inputs of a pass of a model with `config`, after
+    checking that the batch has what the model reads (a ValueError if not); the caller adds
+    the pass's neighbour graph.
 
     An agent absent at t-1 takes its current position as the previous one (zero velocity); two
     steps back is the position there where the agent was present then and since, else the one
@@ -91,5 +91,4 @@ def prepare_pass(
         frame=agent_frames(positions, valid, num_observed) if config.frame == "agent" else None,
         roles=role_inputs if config.role_input else None,
         role_index=None if role_inputs is None else roles.long(),
-        graph=graph,
     )

@@ -258,3 +258,18 @@ def test_run_lstm_is_nn_lstm_outputs_and_gradients(with_state: bool):
     (out_a, h_a, c_a, grads_a), (out_b, h_b, c_b, grads_b) = results
     for a, b in [(out_a, out_b), (h_a, h_b), (c_a, c_b), *zip(grads_a, grads_b, strict=True)]:
         torch.testing.assert_close(a, b, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("num_observed", [0, 9])
+def test_a_window_with_no_observed_or_no_predicted_step_is_refused(num_observed: int):
+    positions, valid, _ = make_scene(steps=9)
+    with pytest.raises(ValueError, match=r"num_observed must be in \[1, 8\]"):
+        make_model()(positions, valid, num_observed=num_observed)
+    with pytest.raises(ValueError, match=r"num_observed must be in \[1, 8\]"):
+        make_model().predict(positions, valid, num_observed=num_observed)
+
+
+def test_oracle_attention_without_labels_is_refused():
+    positions, valid, _ = make_scene()
+    with pytest.raises(ValueError, match="oracle attention needs attention labels"):
+        make_model("oracle")(positions, valid, num_observed=4)
