@@ -34,6 +34,12 @@ def compile_graph_step(model: nn.Module) -> None:
     import torch
 
     torch._dynamo.config.allow_rnn = True  # trace the LSTMs instead of breaking the graph
+    # Every model's graph step is one code object, and Dynamo keeps its compiled entries per code
+    # object with a recompile limit (8): a process that trains run after run (a reproduction
+    # worker) would fill it from the third or fourth model on and run later chunk shapes eager.
+    # So the previous models' entries go; one compiled model trains at a time in a process, and
+    # inductor's on-disk cache still makes the recompilation short.
+    torch._dynamo.reset()
     eager = model._run
     compiled = torch.compile(eager, dynamic=False)
 

@@ -73,6 +73,27 @@ def test_compiled_step_has_the_eager_losses_and_gradients(batch):
                 q.copy_(p)
 
 
+def test_each_compiled_model_starts_from_an_empty_dynamo_cache(batch):
+    """Models trained one after another in a process (a reproduction worker) share the graph
+    step's code object; its cache entries must not pile up towards Dynamo's recompile limit (8).
+    Without the reset, Ours then Ours-Average here hold 4 and then 8 entries."""
+    from torch._dynamo.eval_frame import _debug_get_cache_entry_list
+
+    code = SmoothAttentionPredictor._run.__code__
+    counts = []
+    for variant in ("ours", "average"):  # different graphs: each variant compiles its own
+        model_cfg, train_cfg = make_configs(variant, TINY_MODEL)
+        torch.manual_seed(0)
+        model = SmoothAttentionPredictor(model_cfg)
+        compile_graph_step(model)
+        model.train()
+        optimizer = torch.optim.Adam(model.parameters(), lr=train_cfg.lr)
+        train_step(model, optimizer, batch, OBSERVED, train_cfg)
+        counts.append(len(_debug_get_cache_entry_list(code)))
+    assert counts[0] >= 1  # the first model's step was compiled
+    assert counts[1] == counts[0]  # the second's replaced the first's instead of adding to them
+
+
 def test_a_compiled_run_trains_deterministically_and_its_checkpoint_loads_eager(tmp_path: Path):
     path = write_braking_dataset(tmp_path / "braking.h5")
     model_cfg, train_cfg = make_configs("ours", TINY_MODEL, epochs=1, compile_graph_step=True)
