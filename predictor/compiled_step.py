@@ -19,6 +19,9 @@ if TYPE_CHECKING:  # torch is imported where it is used: command lines check com
     from torch import nn
 
 
+GRAPH_STEP_RECOMPILE_LIMIT = 64  # compiled shapes of the graph step per process (Dynamo's: 8)
+
+
 def compiler_missing() -> str | None:
     """Why the graph step cannot be compiled here (inductor's CPU kernels are C++), or None."""
     compiler = os.environ.get("CXX", "g++")
@@ -40,6 +43,13 @@ def compile_graph_step(model: nn.Module) -> None:
     # So the previous models' entries go; one compiled model trains at a time in a process, and
     # inductor's on-disk cache still makes the recompilation short.
     torch._dynamo.reset()
+    # The step compiles once per input shape (dynamic=False): chunk lengths (chunk_steps, the
+    # spans' remainders, the fed-back single step) times batch sizes (a full batch and a shorter
+    # last one) times the variants' optional inputs. On a small training set (Double Merge
+    # 3+10: batches of 4, 4 and 2 scenes) a run passed Dynamo's default limit of 8 shapes in its
+    # first epoch and ran the rest eager; a run's shapes are few, so the limit is raised.
+    limit = torch._dynamo.config.recompile_limit
+    torch._dynamo.config.recompile_limit = max(limit, GRAPH_STEP_RECOMPILE_LIMIT)
     eager = model._run
     compiled = torch.compile(eager, dynamic=False)
 

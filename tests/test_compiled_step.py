@@ -94,6 +94,27 @@ def test_each_compiled_model_starts_from_an_empty_dynamo_cache(batch):
     assert counts[1] == counts[0]  # the second's replaced the first's instead of adding to them
 
 
+def test_every_batch_size_of_a_run_is_compiled_past_dynamos_default_limit(tmp_path: Path):
+    """Three batch sizes (a small training set's full and last batches) of four shapes each: 12
+    compiled entries of the graph step, more than Dynamo's default limit of 8, none left eager."""
+    from torch._dynamo.eval_frame import _debug_get_cache_entry_list
+
+    dataset = TrajectoryDataset(write_braking_dataset(tmp_path / "braking.h5"), "train")
+    model_cfg, train_cfg = make_configs("ours", TINY_MODEL)
+    torch.manual_seed(0)
+    model = SmoothAttentionPredictor(model_cfg)
+    compile_graph_step(model)
+    model.train()
+    optimizer = torch.optim.Adam(model.parameters(), lr=train_cfg.lr)
+    counts = []
+    for size in (1, 2, 3):
+        batch = collate_batch([dataset[i] for i in range(size)])
+        train_step(model, optimizer, batch, OBSERVED, train_cfg)
+        counts.append(len(_debug_get_cache_entry_list(SmoothAttentionPredictor._run.__code__)))
+    assert counts == [counts[0], 2 * counts[0], 3 * counts[0]]
+    assert counts[-1] > 8
+
+
 def test_a_compiled_run_trains_deterministically_and_its_checkpoint_loads_eager(tmp_path: Path):
     path = write_braking_dataset(tmp_path / "braking.h5")
     model_cfg, train_cfg = make_configs("ours", TINY_MODEL, epochs=1, compile_graph_step=True)
