@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import signal
 import subprocess
 import sys
 from collections.abc import Callable
@@ -37,6 +38,13 @@ from predictor.predictions import Predictions  # noqa: E402
 
 # one torch thread for every test, whichever files are collected (the tools run with one too)
 torch.set_num_threads(1)
+
+# A test run started in the background by a non-interactive shell (`cmd &`) inherits SIGINT
+# ignored, and so would every program it starts: the Ctrl-C tests would then see no
+# KeyboardInterrupt. Python's own handler here gives this process and, through exec, its
+# children the usual Ctrl-C.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # set by a user's shell or CI, these would reach into the tests' own runs: a Ray cluster the
 # tests' temporary folders are not on, warnings or dev-mode lines in a tool's one-line stderr
