@@ -410,6 +410,26 @@ def test_size_series_from_hand_made_runs():
     np.testing.assert_allclose(std, [0.0, 0.0])
 
 
+def test_every_legend_entry_lies_inside_the_figure():
+    every = tuple(records.LABELS)  # nine variants: one legend row was wider than the figure
+    runs = [RunRecord.from_eval("hc_go", v, 0, fake_eval(*ADE_FDE)) for v in every]
+    results = statistics.analyse(runs)
+    drawn = (
+        figures.bar_figure(results, "hc_go", every, CaseNames("go", "stop"), "t"),
+        figures.size_figure(results, ["hc_go"], ["1+1"], every),
+    )
+    for fig in drawn:
+        fig.canvas.draw()
+        (legend,) = fig.legends
+        assert [t.get_text() for t in legend.get_texts()] == list(records.LABELS.values())
+        inside = fig.bbox.padded(1.0)  # pixels; allow rounding at the edge
+        for box in [legend.get_window_extent()] + [
+            t.get_window_extent() for t in legend.get_texts()
+        ]:
+            assert inside.x0 <= box.x0 and box.x1 <= inside.x1, box
+            assert inside.y0 <= box.y0 and box.y1 <= inside.y1, box
+
+
 def test_figures_are_saved_atomically(tmp_path, monkeypatch):
     results = statistics.analyse(hand_runs())
     fig = figures.bar_figure(results, "hc_go", ("ours", "s_attn"), CaseNames("go", "stop"), "t")

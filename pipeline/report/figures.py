@@ -101,13 +101,16 @@ def bar_figure(
     return fig
 
 
+LEGEND_COLUMNS = 5  # entries per legend row: nine variants in one row overflow a 10-inch figure
+
+
 def _legend_below(fig: Figure, ax: Axes) -> None:
     handles, labels = ax.get_legend_handles_labels()
     fig.legend(
         handles,
         labels,
         loc="outside lower center",
-        ncols=len(labels),
+        ncols=min(len(labels), LEGEND_COLUMNS),
         fontsize="small",
         frameon=False,
     )
