@@ -4,7 +4,7 @@ Examples:
     python tools/reproduce.py                      # the full protocol (days; see below)
     python tools/reproduce.py --settings main --seeds 3 --jobs 2
     python tools/reproduce.py --quick              # tiny smoke version of everything (minutes)
-    python tools/reproduce.py --settings main --seeds 5 --report docs/RESULTS.md --overwrite
+    python tools/reproduce.py --budget-minutes 0 --report docs/RESULTS.md --overwrite  # report only
     python tools/reproduce.py --settings main --backend ray --address HEAD_IP:6379
     python tools/reproduce.py --compare-presets agent_zero_cv,paper@main --seeds 5
 
@@ -90,9 +90,10 @@ sequence loss (0.18-0.40 s per scene and epoch: epochs of 9-14 s with only two t
 the machine, 20-40 s with a test run beside). The seven settings hold 378 training scenes in
 all, so the full protocol (350 runs of the agent preset, 20 of the paper preset) is ~145
 job-hours at the 90-epoch rate and up to ~2.5x that on a busy machine: days to weeks with
---jobs 2 here, which is why the published report (docs/RESULTS.md) has 5 seeds and 90 epochs
-and the 200-epoch protocol is gathered over sittings through the results store
-(results/README.md). `--quick` took 8 min beside two trainings.
+--jobs 2 here, which is why the 200-epoch protocol of the published report (docs/RESULTS.md)
+was gathered over sittings through the results store (results/README.md), and why a shorter
+one (5 seeds, 90 epochs) is kept beside it (docs/short_protocol/RESULTS.md). `--quick` took
+8 min beside two trainings.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ ADE of the main cars (what the paper's cross-validation would choose by), the te
 ADE overall and per case, and the attention's mean weight and accuracy on the labelled car
 during the interaction period; then the beta2 with the lowest mean validation ADE and Welch's
 t-test of its test ADE against beta2 = 0 where both were run. Not run by `make bench`;
-docs/results_notes.md has the figures. The last line of stdout is one JSON object.
+docs/short_protocol/results_notes.md has the figures. The last line of stdout is one JSON object.
 """
 
 from __future__ import annotations
