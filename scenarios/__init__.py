@@ -4,12 +4,13 @@ Plain scenario classes (`DoubleMerge`, `HaltingCar`, registered in `SCENARIOS`) 
 episodes from a seed and drive every car with an expert policy; `rollout` records one episode as
 numpy arrays, and `rollout_batch` records many episodes at once as one batched world (the same
 arrays, several times faster). The PettingZoo environments are the submodules `double_merge_v0`,
-`double_merge_v1`, `halting_car_v0`, `halting_car_v1` and `halting_car_v2` (imported on demand:
+`double_merge_v1`, `halting_car_v0` ... `halting_car_v3` (imported on demand:
 `from scenarios import halting_car_v1`). The v1 scenarios (`ReactiveDoubleMerge`,
 `ReactiveHaltingCar`, registered as "double_merge_v1" and "halting_car_v1") make each labelled
 car's observed state decide the attending car's future; Halting Car v2 (`LateBrakeHaltingCar`,
-"halting_car_v2") leaves the follower's own history nothing of it; docs/scenarios.md compares
-the versions.
+"halting_car_v2") leaves the follower's own history nothing of it, and Halting Car v3
+(`FixedBrakeHaltingCar`, "halting_car_v3") makes the leader's observed braking the same in every
+`stop` scene; docs/scenarios.md compares the versions.
 """
 
 import importlib
@@ -24,6 +25,7 @@ from scenarios.double_merge_reactive import (
     ReactiveDoubleMergePlan,
 )
 from scenarios.halting_car import HaltingCar, HaltingCarConfig, HaltingCarPlan
+from scenarios.halting_car_fixed_brake import FixedBrakeHaltingCar, FixedBrakeHaltingCarConfig
 from scenarios.halting_car_late import LateBrakeHaltingCar, LateBrakeHaltingCarConfig
 from scenarios.halting_car_reactive import (
     ReactiveHaltingCar,
@@ -38,6 +40,7 @@ ENV_MODULES: dict[str, str] = {  # scenario name -> its PettingZoo environment m
     "halting_car": "scenarios.halting_car_v0",
     "halting_car_v1": "scenarios.halting_car_v1",
     "halting_car_v2": "scenarios.halting_car_v2",
+    "halting_car_v3": "scenarios.halting_car_v3",
 }
 
 SCENARIOS: dict[str, type[Scenario]] = {
@@ -46,6 +49,7 @@ SCENARIOS: dict[str, type[Scenario]] = {
     HaltingCar.name: HaltingCar,
     ReactiveHaltingCar.name: ReactiveHaltingCar,
     LateBrakeHaltingCar.name: LateBrakeHaltingCar,
+    FixedBrakeHaltingCar.name: FixedBrakeHaltingCar,
 }
 
 
@@ -64,6 +68,8 @@ __all__ = [
     "DoubleMergeConfig",
     "DoubleMergePlan",
     "Episode",
+    "FixedBrakeHaltingCar",
+    "FixedBrakeHaltingCarConfig",
     "HaltingCar",
     "HaltingCarConfig",
     "HaltingCarPlan",

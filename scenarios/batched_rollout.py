@@ -27,6 +27,7 @@ from scenarios.double_merge_batched import BatchedDoubleMerge, BatchedReactiveDo
 from scenarios.double_merge_reactive import ReactiveDoubleMerge
 from scenarios.halting_car import HaltingCar
 from scenarios.halting_car_batched import BatchedHaltingCar, BatchedReactiveHaltingCar
+from scenarios.halting_car_fixed_brake import FixedBrakeHaltingCar
 from scenarios.halting_car_late import LateBrakeHaltingCar
 from scenarios.halting_car_reactive import ReactiveHaltingCar
 from scenarios.rollout import Episode, rollout
@@ -37,6 +38,7 @@ BATCHED_EXPERTS: dict[type[Scenario], type[BatchedExpert]] = {
     HaltingCar: BatchedHaltingCar,
     ReactiveHaltingCar: BatchedReactiveHaltingCar,
     LateBrakeHaltingCar: BatchedReactiveHaltingCar,  # v1's expert, v2's ranges (in the plans)
+    FixedBrakeHaltingCar: BatchedReactiveHaltingCar,  # v1's expert, v3's ranges
 }
 
 

@@ -32,6 +32,7 @@ with warnings.catch_warnings():
 from scenarios import (
     DoubleMerge,
     DoubleMergeConfig,
+    FixedBrakeHaltingCar,
     HaltingCar,
     LateBrakeHaltingCar,
     ReactiveDoubleMerge,
@@ -41,16 +42,25 @@ from scenarios import (
     halting_car_v0,
     halting_car_v1,
     halting_car_v2,
+    halting_car_v3,
     rollout,
 )
 
-MODULES = [double_merge_v0, double_merge_v1, halting_car_v0, halting_car_v1, halting_car_v2]
+MODULES = [
+    double_merge_v0,
+    double_merge_v1,
+    halting_car_v0,
+    halting_car_v1,
+    halting_car_v2,
+    halting_car_v3,
+]
 SCENARIO_OF = {
     double_merge_v0: DoubleMerge,
     double_merge_v1: ReactiveDoubleMerge,
     halting_car_v0: HaltingCar,
     halting_car_v1: ReactiveHaltingCar,
     halting_car_v2: LateBrakeHaltingCar,
+    halting_car_v3: FixedBrakeHaltingCar,
 }
 CASES = [(module, case) for module in MODULES for case in SCENARIO_OF[module].case_names]
 IDS = [f"{module.__name__.split('.')[-1]}-{case}" for module, case in CASES]

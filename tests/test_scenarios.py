@@ -1,6 +1,6 @@
 """Scenarios without PettingZoo: registry, configs, recorded episodes, expert safety over 200
 seeds per case, the v0 scenarios' behaviour, and the causal dependence between the main cars
-(with a test that distractors influence nobody). The reactive scenarios' behaviour (v1, v2) is
+(with a test that distractors influence nobody). The reactive scenarios' behaviour (v1 to v3) is
 in test_scenarios_reactive.py."""
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ def test_registry_and_class_attributes() -> None:
         "halting_car",
         "halting_car_v1",
         "halting_car_v2",
+        "halting_car_v3",
     }
     assert DoubleMerge.case_names == ("major", "minor")
     assert HaltingCar.case_names == ("stop", "go")

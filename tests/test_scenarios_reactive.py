@@ -1,4 +1,4 @@
-"""The reactive scenarios' promises (Double Merge v1, Halting Car v1 and v2): the interaction
+"""The reactive scenarios' promises (Double Merge v1, Halting Car v1 to v3): the interaction
 starts inside the observed window, each car answers the other after its reaction delay, and
 only the attended car's observed history tells what the attending car will do."""
 
@@ -13,8 +13,9 @@ from scenario_episodes import episodes, plan_of
 from scenarios import (
     SCENARIOS,
     Episode,
+    FixedBrakeHaltingCar,
+    FixedBrakeHaltingCarConfig,
     LateBrakeHaltingCar,
-    LateBrakeHaltingCarConfig,
     ReactiveDoubleMerge,
     ReactiveDoubleMergeConfig,
     ReactiveHaltingCar,
@@ -156,14 +157,15 @@ def test_halting_car_v1_follower_reacts_to_the_leader_exactly_one_delay_later(se
     assert not braked.collided
 
 
-# --- Halting Car v2 -------------------------------------------------------------------------------
-def test_halting_car_v2_only_the_leader_shows_the_stop_before_prediction() -> None:
+# --- Halting Car v2 and v3 ------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["halting_car_v2", "halting_car_v3"])
+def test_halting_car_v2_v3_only_the_leader_shows_the_stop_before_prediction(name: str) -> None:
     """200 seeds: the leader's observed states differ between the cases (it brakes for 1-3
     observed steps), the follower's observed states and actions are the same in both (its own
     history cannot tell the case), and it then brakes, with the v1 safety margin."""
-    config = LateBrakeHaltingCarConfig()
+    config = SCENARIOS[name].config_class()
     observed = config.num_observed
-    for stop, go in zip(episodes("halting_car_v2", "stop"), episodes("halting_car_v2", "go")):
+    for stop, go in zip(episodes(name, "stop"), episodes(name, "go")):
         leader_stop, leader_go = stop.states[:observed, BROWN, 3], go.states[:observed, BROWN, 3]
         slower = np.nonzero(leader_stop < leader_go - 1e-6)[0]
         assert 1 <= len(slower) <= 3 and slower[-1] == observed - 1
@@ -185,3 +187,30 @@ def test_halting_car_v2_plan_is_v1_plan_with_v2_ranges() -> None:
         assert 2.4 <= v2.brake_start_s <= 3.0 and v2.reaction_steps == 3
         assert (v2.stop_duration_s, v2.resume_accel_mps2) == (1.5, 2.5)
     assert isinstance(SCENARIOS["halting_car_v2"](), LateBrakeHaltingCar)
+
+
+def test_halting_car_v3_last_observed_step_shows_the_same_braking_in_every_stop_scene() -> None:
+    """200 seeds: over the last observed step the leader's speed falls by 4 m/s^2 x 0.3 s in
+    every `stop` scene and not at all in every `go` scene (the case is one linear reading of
+    its history), and its cruise lies in 9-11 m/s."""
+    config = FixedBrakeHaltingCarConfig()
+    last = config.num_observed - 1
+    drop = config.brake_decel_mps2[0] * config.recorded_dt
+    assert config.brake_decel_mps2 == (4.0, 4.0) and drop == pytest.approx(1.2)
+    for stop, go in zip(episodes("halting_car_v3", "stop"), episodes("halting_car_v3", "go")):
+        assert stop.states[last - 1, BROWN, 3] - stop.states[last, BROWN, 3] == pytest.approx(
+            drop, abs=1e-4
+        )
+        assert go.states[last - 1, BROWN, 3] == go.states[last, BROWN, 3]
+        assert 9.0 <= go.states[0, BROWN, 3] <= 11.0
+
+
+def test_halting_car_v3_plan_is_v2_plan_with_v3_ranges() -> None:
+    """Same draws as v2: the onset, the follower's headway and delay, the stop and resume
+    agree; the cruise lies in 9-11 m/s and the deceleration is 4 m/s^2."""
+    for seed in range(20):
+        v2, v3 = plan_of("halting_car_v2", seed, "stop"), plan_of("halting_car_v3", seed, "stop")
+        assert (v2.brake_start_s, v2.time_headway_s) == (v3.brake_start_s, v3.time_headway_s)
+        assert (v2.reaction_steps, v2.stop_duration_s) == (v3.reaction_steps, v3.stop_duration_s)
+        assert 9.0 <= v3.cruise_speed_mps <= 11.0 and v3.brake_decel_mps2 == 4.0
+    assert isinstance(SCENARIOS["halting_car_v3"](), FixedBrakeHaltingCar)

@@ -19,12 +19,17 @@ At the paper's size (50 `stop` + 15 `go` train + val) the follower's interaction
   fixed: only the leader's history can show that, when and how hard the follower will brake
   (these are `halting_car_v2`'s ranges); `late_brake_random_resume` keeps v1's stop and resume
   draws, `late_brake_later` starts the braking at 2.7-3.0 s, `late_brake_fixed_follower` also
-  fixes the follower's time headway (1.6 s) and initial gap (the IDM equilibrium).
+  fixes the follower's time headway (1.6 s) and initial gap (the IDM equilibrium);
+- `late_brake_fixed_decel`: `late_brake` with the leader's deceleration fixed at 4 m/s^2, so
+  its observed acceleration is the same in every `stop` scene; `late_brake_fixed_speed` fixes
+  the cruise (10 m/s) instead, `late_brake_fixed_speed_decel` both, and
+  `late_brake_narrow_speed_fixed_decel` fixes the deceleration and draws the cruise from
+  9-11 m/s (these are `halting_car_v3`'s ranges, `scenarios.halting_car_fixed_brake`).
 
 For each dataset seed 0 .. seeds-1 a file (100 test trajectories per case) is generated in a
 temporary folder with the variant's ranges (the registry entry `halting_car_v1` is replaced in
 this process only; the expert's collision safety is not checked here: for `late_brake` the
-tests of `halting_car_v2` check it over 200 seeds per case) and
+tests of `halting_car_v2` and `halting_car_v3` check it over 200 seeds per case) and
 `predictor.interaction.interaction_gain` is measured with the shared and the banded penalty,
 one regression per role (default) or, with `--grouping case`, per case: an oracle grouping that
 tells the own-history regression the case too, so what remains is what the leader's history
@@ -46,6 +51,7 @@ from gain_seeds import seed_files
 
 import scenarios
 from predictor.interaction import interaction_gain
+from scenarios.halting_car_fixed_brake import FixedBrakeHaltingCarConfig
 from scenarios.halting_car_late import LateBrakeHaltingCarConfig
 from scenarios.halting_car_reactive import ReactiveHaltingCar, ReactiveHaltingCarConfig
 
@@ -75,6 +81,18 @@ VARIANTS.update(
             **LATE,
             "time_headway_s": (1.6, 1.6),
             "initial_gap_ratio": (1.0, 1.0),
+        },
+        "late_brake_fixed_speed": {**LATE, "cruise_speed_mps": (10.0, 10.0)},
+        "late_brake_fixed_decel": {**LATE, "brake_decel_mps2": (4.0, 4.0)},
+        "late_brake_narrow_speed_fixed_decel": {  # halting_car_v3's ranges
+            **LATE,
+            "cruise_speed_mps": FixedBrakeHaltingCarConfig().cruise_speed_mps,
+            "brake_decel_mps2": FixedBrakeHaltingCarConfig().brake_decel_mps2,
+        },
+        "late_brake_fixed_speed_decel": {
+            **LATE,
+            "cruise_speed_mps": (10.0, 10.0),
+            "brake_decel_mps2": (4.0, 4.0),
         },
     }
 )
