@@ -1,7 +1,7 @@
 """Experiment (issue 11): the interaction gain at the paper's size over many dataset seeds.
 
 Usage: python benchmarks/experiments/gain_seeds.py [--seeds 10] [--num-major 50] [--num-minor 15]
-       [--penalty shared|banded] [--control random|shuffled]
+       [--penalty shared|banded] [--control random|shuffled] [--major-case CASE]
        [--scenarios double_merge_v1,halting_car_v1]
 
 For each scenario (default the v1 ones) and dataset seed 0 .. seeds-1, generates a file of the
@@ -12,7 +12,9 @@ grouping and case, the gain and control over the seeds' rows (minimum, median, m
 pooled (ADE sums over all rows), and how many rows meet issue 11's bounds (gain >= 30 %,
 control within 3 %); `--penalty banded` gives the other car's features a penalty of their own
 (`predictor.interaction`); `--control shuffled` replaces the random car by the labelled car of
-another scene, a null control whose spread is the probe's own noise at this size. Not run by
+another scene, a null control whose spread is the probe's own noise at this size;
+`--major-case go` makes Halting Car's `go` the major case (default: each scenario's
+`default_major_case`, Double Merge `major`, Halting Car `stop`). Not run by
 `make bench`; docs/scenarios.md has the figures.
 The last line of stdout is one JSON object.
 """
@@ -37,13 +39,24 @@ GAIN_BOUND, CONTROL_BOUND = 0.30, 0.03  # issue 11: gain >= 30 %, random car wit
 
 
 def seed_files(
-    scenario: str, seeds: int, num_major: int, num_minor: int, folder: str | Path
+    scenario: str,
+    seeds: int,
+    num_major: int,
+    num_minor: int,
+    folder: str | Path,
+    major_case: str | None = None,
 ) -> Iterator[Path]:
     """Generate one file of `scenario` per dataset seed 0 .. seeds-1 in `folder` (100 test
-    trajectories per case) and yield each path once it is written."""
+    trajectories per case, `major_case` as `GenerateConfig.for_scenario` takes it) and yield
+    each path once it is written."""
     for seed in range(seeds):
         config = GenerateConfig.for_scenario(
-            scenario, num_major=num_major, num_minor=num_minor, num_test=100, seed=seed
+            scenario,
+            major_case=major_case,
+            num_major=num_major,
+            num_minor=num_minor,
+            num_test=100,
+            seed=seed,
         )
         path = Path(folder) / f"{scenario}_{seed}.h5"
         generate_dataset(config, path, workers=1, progress=False)
@@ -89,6 +102,11 @@ def main() -> None:
         "(predictor.interaction; default random)",
     )
     parser.add_argument(
+        "--major-case",
+        default=None,
+        help="the major case of every scenario (default: each one's default_major_case)",
+    )
+    parser.add_argument(
         "--scenarios",
         default=",".join(SCENARIOS),
         help=f"comma-separated registered scenarios (default {','.join(SCENARIOS)})",
@@ -97,7 +115,10 @@ def main() -> None:
     rows: dict[tuple[str, str, str], list[GainRow]] = defaultdict(list)
     with tempfile.TemporaryDirectory() as folder:
         for scenario in args.scenarios.split(","):
-            for path in seed_files(scenario, args.seeds, args.num_major, args.num_minor, folder):
+            files = seed_files(
+                scenario, args.seeds, args.num_major, args.num_minor, folder, args.major_case
+            )
+            for path in files:
                 for grouping in GROUPINGS:
                     for row in interaction_gain(
                         path, grouping=grouping, penalty=args.penalty, control=args.control
@@ -116,7 +137,12 @@ def main() -> None:
             f"rows gain >= 30 % {figures['gains_over_30pct']}, control within 3 % "
             f"{figures['controls_within_3pct']}"
         )
-    summary_line = {"seeds": args.seeds, "penalty": args.penalty, "control": args.control}
+    summary_line = {
+        "seeds": args.seeds,
+        "penalty": args.penalty,
+        "control": args.control,
+        "major_case": args.major_case,
+    }
     print(json.dumps({**summary_line, "results": results}))
 
 
