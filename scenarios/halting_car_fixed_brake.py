@@ -9,7 +9,7 @@ deceleration is then a graded signal whose product with the speed decides the fo
 and a linear read of the leader's history at the paper's size recovers a median 30 % of the
 follower's `stop` error (docs/scenarios.md). Version 3 keeps v2's expert and ranges except:
 
-- the leader brakes at a fixed 4 m/s^2 (the middle of v2's range), so its observed
+- the leader brakes at a fixed 4 m/s^2 (inside v2's range), so its observed
   acceleration in the last one to three observed steps is the same in every `stop` scene and
   zero in every `go` scene: it tells the case without a product;
 - the cruising speed is drawn from 9-11 m/s (v2: 8-12), so the speed's share in the follower's

@@ -211,6 +211,10 @@ def test_halting_car_v3_plan_is_v2_plan_with_v3_ranges() -> None:
     for seed in range(20):
         v2, v3 = plan_of("halting_car_v2", seed, "stop"), plan_of("halting_car_v3", seed, "stop")
         assert (v2.brake_start_s, v2.time_headway_s) == (v3.brake_start_s, v3.time_headway_s)
-        assert (v2.reaction_steps, v2.stop_duration_s) == (v3.reaction_steps, v3.stop_duration_s)
+        assert v2.reaction_steps == v3.reaction_steps
+        assert (v2.stop_duration_s, v2.resume_accel_mps2) == (
+            v3.stop_duration_s,
+            v3.resume_accel_mps2,
+        )
         assert 9.0 <= v3.cruise_speed_mps <= 11.0 and v3.brake_decel_mps2 == 4.0
     assert isinstance(SCENARIOS["halting_car_v3"](), FixedBrakeHaltingCar)
