@@ -46,15 +46,7 @@ from scenarios import (
     rollout,
 )
 
-MODULES = [
-    double_merge_v0,
-    double_merge_v1,
-    halting_car_v0,
-    halting_car_v1,
-    halting_car_v2,
-    halting_car_v3,
-]
-SCENARIO_OF = {
+SCENARIO_OF = {  # every environment module and the scenario class it serves
     double_merge_v0: DoubleMerge,
     double_merge_v1: ReactiveDoubleMerge,
     halting_car_v0: HaltingCar,
@@ -62,6 +54,7 @@ SCENARIO_OF = {
     halting_car_v2: LateBrakeHaltingCar,
     halting_car_v3: FixedBrakeHaltingCar,
 }
+MODULES = list(SCENARIO_OF)
 CASES = [(module, case) for module in MODULES for case in SCENARIO_OF[module].case_names]
 IDS = [f"{module.__name__.split('.')[-1]}-{case}" for module, case in CASES]
 
