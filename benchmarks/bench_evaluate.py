@@ -46,7 +46,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "dm.h5"
-        generate_dataset(GenerateConfig.for_scenario("double_merge"), path, progress=False)
+        generate_dataset(GenerateConfig.for_scenario("double_merge_v0"), path, progress=False)
         load_s = median_seconds(lambda: TrajectoryDataset(path, "test").all(), args.repeats)
         dataset = TrajectoryDataset(path, "test")
         train = TrajectoryDataset(path, "train").data

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from pipeline.episode_runner import DEFAULT_BATCH_SCENES
 from pipeline.generation import GenerateConfig, generate_dataset, plan
-from scenarios import SCENARIOS
+from scenarios import VERSIONS
 
 # (label, batch_scenes, workers, backend) of each column
 RUNS = (
@@ -54,7 +54,7 @@ def time_generation(config: GenerateConfig, workers: int, batch_scenes: int, bac
 
 def agent_steps(name: str) -> int:
     """Simulated agent-steps of the default set of scenario `name`."""
-    config = SCENARIOS[name]().config
+    config = VERSIONS[name].config()
     trajectories = len(plan(GenerateConfig.for_scenario(name)))
     return trajectories * config.num_steps * config.record_every * config.num_cars
 
@@ -65,7 +65,7 @@ def main() -> None:
     parser.add_argument("--scenarios", default="", help="comma-separated names (default all)")
     parser.add_argument("--no-ray", action="store_true", help="skip the Ray column")
     args = parser.parse_args()
-    names = [name for name in args.scenarios.split(",") if name] or sorted(SCENARIOS)
+    names = [name for name in args.scenarios.split(",") if name] or list(VERSIONS)
     use_ray = not args.no_ray and importlib.util.find_spec("ray") is not None
     record: dict = {"benchmark": "generate", "batch_scenes": DEFAULT_BATCH_SCENES}
     if not use_ray:

@@ -1,51 +1,63 @@
-"""Many independent scenes stepped as one world: B scenes of N cars, arrays with a leading scene
-axis (`xy (B, N, 2)`, `heading (B, N)`, `speed (B, N)`).
+"""The simulator: B independent scenes of N cars stepped as one world, arrays with a leading
+scene axis (`xy (B, N, 2)`, `heading (B, N)`, `speed (B, N)`, `active (B, N)`).
 
-Stepping one scene costs a few hundred numpy calls on 22-element arrays, so a single `World`
-spends its time in call overhead, not arithmetic. `BatchedWorld` steps all B x N cars with the
-same calls on B times longer arrays. Every car's arithmetic is element for element the one
-`World` does (the same numpy operations, in the same order, on the same flat layout), so a scene
-of a batched world evolves bit for bit like a `World` built from the same state under the same
-controls (tested). Collision and off-road checks use the same broad phase per scene (pairs only
-within a scene) and the same pymunk narrow phase for the few candidates.
+Stepping one scene costs a few hundred numpy calls on 22-element arrays, so a scene alone spends
+its time in call overhead, not arithmetic; `BatchedWorld` steps all B x N cars with the same
+calls on B times longer arrays. Every car's arithmetic is element for element the same whatever
+B is (the same numpy operations, in the same order, on a flat (B*N,) layout), so a scene evolves
+bit for bit as it would alone. `carlo_lite.World` is one scene of it (B = 1) with per-car arrays.
 
-All cars are always active: a batched world has no `deactivate` (the dataset generator never
-removes cars; use `World` for that).
+Each scene keeps its own clock (`step_count`, `time_s`, (B,)) and its own removed cars
+(`deactivate`): a removed car freezes, takes part in no collision and is not drawn.
+`restart(scenes, state)` starts some scenes over (a new episode) while the others go on.
+Collision and off-road checks use a numpy broad phase per scene (pairs only within a scene)
+and a pymunk narrow phase for the few candidates.
 """
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from carlo_lite.collision import CollisionChecker
 from carlo_lite.kinematics import CarLimits, bicycle_step, wrap_angle
 from carlo_lite.road import StraightRoad
-from carlo_lite.world import (
-    DEFAULT_LENGTH_M,
-    DEFAULT_WHEELBASE_M,
-    DEFAULT_WIDTH_M,
-    World,
-    _per_car,
-)
+
+if TYPE_CHECKING:
+    from carlo_lite.world import World
+
+DEFAULT_LENGTH_M = 4.5
+DEFAULT_WIDTH_M = 1.8
+DEFAULT_WHEELBASE_M = 2.7
+
+
+def per_car(value: float | Sequence[float] | np.ndarray, num_cars: int, name: str) -> np.ndarray:
+    """`value` as one positive finite number per car (N,); ValueError naming `name` otherwise."""
+    array = np.broadcast_to(np.asarray(value, dtype=float), (num_cars,)).copy()
+    if not np.all(np.isfinite(array)) or np.any(array <= 0):
+        raise ValueError(f"{name} must be finite and positive for every car")
+    return array
 
 
 class BatchedWorld:
     """B scenes of the same N car bodies on one road, stepped together.
 
     Arguments:
-        road: the road every scene drives on.
+        road: the road every scene drives on (its edges define off-road).
         state: initial states (B, N, 4) = [x m, y m, heading rad, speed m/s]; headings are
-            wrapped to [-pi, pi) and speeds clipped to [0, limits.max_speed_mps], as in `World`.
+            wrapped to [-pi, pi) and speeds clipped to [0, limits.max_speed_mps].
         length_m, width_m, wheelbase_m: body sizes [m], a scalar or one per car (N,), the same
             in every scene (defaults 4.5, 1.8, 2.7).
+        roles: one label per car (e.g. "main_green", "distractor"), for colours and messages.
         dt: simulation step [s] (default 0.1).
         limits: control and speed limits (see `CarLimits`).
 
-    `step(controls)` advances every car by `dt` under controls (B, N, 2) = [steering rad,
-    acceleration m/s^2]; `incidents()` says which cars overlap another car of their scene and
-    which touch or cross a road edge.
+    `step(controls)` advances every active car by `dt` under controls (B, N, 2) = [steering
+    rad, acceleration m/s^2]; `incidents()` says which active cars overlap another car of their
+    scene and which touch or cross a road edge.
     """
 
     def __init__(
@@ -56,6 +68,7 @@ class BatchedWorld:
         length_m: float | Sequence[float] = DEFAULT_LENGTH_M,
         width_m: float | Sequence[float] = DEFAULT_WIDTH_M,
         wheelbase_m: float | Sequence[float] = DEFAULT_WHEELBASE_M,
+        roles: Sequence[str] | None = None,
         dt: float = 0.1,
         limits: CarLimits = CarLimits(),
     ) -> None:
@@ -68,22 +81,25 @@ class BatchedWorld:
         self.road = road
         self.dt = float(dt)
         self.limits = limits
-        self.length_m = _per_car(length_m, num_cars, "length_m")  # (N,)
-        self.width_m = _per_car(width_m, num_cars, "width_m")
-        self.wheelbase_m = _per_car(wheelbase_m, num_cars, "wheelbase_m")
+        self.length_m = per_car(length_m, num_cars, "length_m")  # (N,)
+        self.width_m = per_car(width_m, num_cars, "width_m")
+        self.wheelbase_m = per_car(wheelbase_m, num_cars, "wheelbase_m")
+        self.roles = tuple(roles) if roles is not None else ("car",) * num_cars
+        if len(self.roles) != num_cars:
+            raise ValueError(f"got {len(self.roles)} roles for {num_cars} cars")
         self._shape = (num_scenes, num_cars)
-        flat = num_scenes * num_cars
         self._flat_wheelbase = np.tile(self.wheelbase_m, num_scenes)  # (B*N,)
         self._flat_length = np.tile(self.length_m, num_scenes)
         self._flat_width = np.tile(self.width_m, num_scenes)
         self._checker = CollisionChecker(self.length_m, self.width_m, road.edge_segments())
-        self._active = np.ones(num_cars, dtype=bool)  # for the per-scene narrow phase
         self._upper = np.triu(np.ones((num_cars, num_cars), dtype=bool), k=1)  # pairs i < j
-        state = state.reshape(flat, 4)
-        self._xy = state[:, :2].copy()  # (B*N, 2), the layout World steps
+        state = state.reshape(num_scenes * num_cars, 4)
+        self._xy = state[:, :2].copy()  # (B*N, 2)
         self._heading = wrap_angle(state[:, 2].copy())  # (B*N,)
         self._speed = np.clip(state[:, 3], 0.0, limits.max_speed_mps)  # (B*N,)
-        self.step_count = 0
+        self._active = np.ones(self._shape, dtype=bool)
+        self._all_active = True  # no car removed anywhere: the fast paths apply
+        self._step_count = np.zeros(num_scenes, dtype=np.int64)
 
     # --- state -----------------------------------------------------------------------------
     @property
@@ -111,53 +127,108 @@ class BatchedWorld:
         return _readonly(self._speed.reshape(self._shape))
 
     @property
+    def active(self) -> np.ndarray:
+        """(B, N) bool, read-only view: the car takes part (not removed by `deactivate`)."""
+        return _readonly(self._active)
+
+    @property
     def state(self) -> np.ndarray:
         """A copy of the state, (B, N, 4) = [x, y, heading, speed]."""
         flat = np.column_stack([self._xy, self._heading, self._speed])  # (B*N, 4)
         return flat.reshape(*self._shape, 4)
 
     @property
-    def time_s(self) -> float:
-        return self.step_count * self.dt
+    def step_count(self) -> np.ndarray:
+        """Steps since each scene (re)started, (B,) int64, read-only view."""
+        return _readonly(self._step_count)
+
+    @property
+    def time_s(self) -> np.ndarray:
+        """Each scene's clock [s], (B,): step_count * dt."""
+        return self._step_count * self.dt
+
+    def restart(self, scenes: Sequence[int] | np.ndarray, state: np.ndarray) -> None:
+        """Start `scenes` (K indices) over from `state` (K, N, 4): clock 0, every car active.
+
+        The other scenes are untouched. ValueError for a state that is not finite (K, N, 4).
+        """
+        scenes = np.asarray(scenes, dtype=np.int64).reshape(-1)
+        state = np.asarray(state, dtype=float)
+        if state.shape != (len(scenes), self.num_cars, 4) or not np.all(np.isfinite(state)):
+            raise ValueError(
+                f"state must be a finite ({len(scenes)}, {self.num_cars}, 4) array, "
+                f"got shape {state.shape}"
+            )
+        rows = (scenes[:, None] * self.num_cars + np.arange(self.num_cars)).reshape(-1)
+        flat = state.reshape(-1, 4)
+        self._xy[rows] = flat[:, :2]
+        self._heading[rows] = wrap_angle(flat[:, 2])
+        self._speed[rows] = np.clip(flat[:, 3], 0.0, self.limits.max_speed_mps)
+        self._active[scenes] = True
+        self._all_active = bool(self._active.all())
+        self._step_count[scenes] = 0
+
+    def deactivate(self, cars: np.ndarray) -> None:
+        """Remove the cars where `cars` (B, N) bool is set: they freeze, never collide and are
+        not drawn, until their scene restarts."""
+        cars = np.asarray(cars, dtype=bool)
+        if cars.shape != self._shape:
+            raise ValueError(f"cars must be a {self._shape} mask, got shape {cars.shape}")
+        self._active &= ~cars
+        self._all_active = bool(self._active.all())
+
+    def copy(self) -> BatchedWorld:
+        """An independent copy (state arrays copied; road and collision checker shared, which
+        is safe because the checker holds no state between queries)."""
+        clone = copy.copy(self)
+        clone._xy = self._xy.copy()
+        clone._heading = self._heading.copy()
+        clone._speed = self._speed.copy()
+        clone._active = self._active.copy()
+        clone._step_count = self._step_count.copy()
+        return clone
 
     def scene(self, index: int) -> World:
-        """Scene `index` as an independent `World` (same state, clock and bodies); IndexError
-        outside [0, num_scenes)."""
+        """Scene `index` as an independent one-scene `World` (same state, clock, removed cars
+        and bodies); IndexError outside [0, num_scenes)."""
+        from carlo_lite.world import World
+
         if not 0 <= index < self.num_scenes:
             raise IndexError(f"scene {index} out of range: this world has {self.num_scenes}")
+        single = copy.copy(self)
+        single._shape = (1, self.num_cars)
         cars = slice(index * self.num_cars, (index + 1) * self.num_cars)
-        world = World(
-            self.road,
-            self._xy[cars],
-            self._heading[cars],
-            self._speed[cars],
-            length_m=self.length_m,
-            width_m=self.width_m,
-            wheelbase_m=self.wheelbase_m,
-            dt=self.dt,
-            limits=self.limits,
-        )
-        world.step_count = self.step_count
-        return world
+        single._xy, single._heading = self._xy[cars].copy(), self._heading[cars].copy()
+        single._speed = self._speed[cars].copy()
+        single._active = self._active[index : index + 1].copy()
+        single._all_active = bool(single._active.all())
+        single._step_count = self._step_count[index : index + 1].copy()
+        single._flat_wheelbase, single._flat_length = self.wheelbase_m, self.length_m
+        single._flat_width = self.width_m
+        return World.of(single)
 
     # --- dynamics ---------------------------------------------------------------------------
     def step(self, controls: np.ndarray) -> None:
-        """Advance every car by `dt` under `controls` (B, N, 2) = [steering rad, accel m/s^2].
+        """Advance every active car by `dt` under `controls` (B, N, 2) = [steering rad, accel
+        m/s^2]; removed cars stay where they are and their controls are ignored.
 
-        Raises ValueError naming the first scene and car with a NaN or infinite control; values
-        outside `limits` are clipped.
+        Raises ValueError naming the first active car (and its scene when B > 1) with a NaN or
+        infinite control; values outside `limits` are clipped.
         """
         controls = np.asarray(controls, dtype=float)
         if controls.shape != (*self._shape, 2):
             raise ValueError(f"controls must have shape {(*self._shape, 2)}, got {controls.shape}")
         controls = controls.reshape(-1, 2)  # (B*N, 2)
+        active = None if self._all_active else self._active.reshape(-1)
         if not np.isfinite(controls).all():
-            scene, car = divmod(int(np.argmax(~np.isfinite(controls).all(axis=1))), self.num_cars)
-            raise ValueError(
-                f"scene {scene}, car {car} has a non-finite control "
-                f"[steering, acceleration] = {controls[scene * self.num_cars + car].tolist()}"
-            )
-        self._xy, self._heading, self._speed = bicycle_step(
+            bad = ~np.isfinite(controls).all(axis=1)
+            if active is not None:
+                bad &= active
+            if bad.any():
+                self._refuse(int(np.argmax(bad)), controls)
+        if active is not None:
+            controls = np.where(active[:, None], controls, 0.0)
+        xy, heading, speed = bicycle_step(
             self._xy,
             self._heading,
             self._speed,
@@ -166,7 +237,21 @@ class BatchedWorld:
             self.dt,
             self.limits.max_speed_mps,
         )
-        self.step_count += 1
+        if active is None:
+            self._xy, self._heading, self._speed = xy, heading, speed
+        else:
+            self._xy[active] = xy[active]
+            self._heading[active] = heading[active]
+            self._speed[active] = speed[active]
+        self._step_count += 1
+
+    def _refuse(self, flat_index: int, controls: np.ndarray) -> None:
+        scene, car = divmod(flat_index, self.num_cars)
+        where = f"scene {scene}, car {car}" if self.num_scenes > 1 else f"car {car}"
+        raise ValueError(
+            f"{where} ({self.roles[car]}) has a non-finite control "
+            f"[steering, acceleration] = {controls[flat_index].tolist()}"
+        )
 
     # --- queries ----------------------------------------------------------------------------
     def bounding_boxes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -179,34 +264,44 @@ class BatchedWorld:
         return (self._xy - half).reshape(shape), (self._xy + half).reshape(shape)
 
     def incidents(self) -> tuple[np.ndarray, np.ndarray]:
-        """(collided (B, N), off_road (B, N)) bool: the car overlaps another car of its scene;
-        some part of the car is outside the road edges (as `World.incidents`, per scene)."""
+        """(collided (B, N), off_road (B, N)) bool: the active car overlaps another active car
+        of its scene; some part of the active car is outside the road edges. One bounding-box
+        computation for both: the cheapest way to check every step."""
         low, high = self.bounding_boxes()
         return self._collisions(low, high), self._off_road(low, high)
 
+    def collision_pairs(self, scene: int) -> np.ndarray:
+        """Pairs (K, 2), i < j, of active cars of `scene` whose bodies overlap."""
+        low, high = self.bounding_boxes()
+        return self._scene_pairs(scene, low[scene], high[scene])
+
+    def _scene_pairs(self, scene: int, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+        xy, heading = self.xy[scene], self.heading[scene]
+        return self._checker.collision_pairs(low, high, xy, heading, self._active[scene])
+
     def _candidate_scenes(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-        """Scenes with at least one pair i < j of overlapping bounding boxes (B,) bool."""
+        """Scenes with at least one pair i < j of active cars with overlapping bounding boxes
+        (B,) bool."""
         overlap_x = (low[:, :, None, 0] <= high[:, None, :, 0]) & (
             high[:, :, None, 0] >= low[:, None, :, 0]
         )  # (B, N, N)
         overlap_y = (low[:, :, None, 1] <= high[:, None, :, 1]) & (
             high[:, :, None, 1] >= low[:, None, :, 1]
         )
-        return (overlap_x & overlap_y & self._upper).any(axis=(1, 2))
+        close = overlap_x & overlap_y & self._upper
+        if not self._all_active:
+            close &= self._active[:, :, None] & self._active[:, None, :]
+        return close.any(axis=(1, 2))
 
     def _collisions(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
         hit = np.zeros(self._shape, dtype=bool)
-        xy, heading = self.xy, self.heading
         for scene in np.nonzero(self._candidate_scenes(low, high))[0].tolist():
-            pairs = self._checker.collision_pairs(
-                low[scene], high[scene], xy[scene], heading[scene], self._active
-            )
-            hit[scene, pairs.ravel()] = True
+            hit[scene, self._scene_pairs(scene, low[scene], high[scene]).ravel()] = True
         return hit
 
     def _off_road(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
         d_min, d_max = self.road.lateral_bounds
-        x = self.xy[..., 0]  # (B, N)
+        x = self._xy[:, 0].reshape(self._shape)  # (B, N)
         inside = (
             (low[..., 1].min(axis=1) > d_min)
             & (high[..., 1].max(axis=1) < d_max)
@@ -216,10 +311,11 @@ class BatchedWorld:
         off = np.zeros(self._shape, dtype=bool)
         xy, heading = self.xy, self.heading
         for scene in np.nonzero(~inside)[0].tolist():
+            active = self._active[scene]
             touching = self._checker.edge_contacts(
-                low[scene], high[scene], xy[scene], heading[scene], self._active
+                low[scene], high[scene], xy[scene], heading[scene], active
             )
-            off[scene] = touching | (self.road.lane_index(xy[scene]) < 0)
+            off[scene] = (touching | (self.road.lane_index(xy[scene]) < 0)) & active
         return off
 
 

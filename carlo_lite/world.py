@@ -1,26 +1,24 @@
-"""The world: a road and a set of cars stored as arrays, stepped together."""
+"""The world of one scene: a road and a set of cars stored as arrays, stepped together.
+
+`World` is a one-scene view of `carlo_lite.BatchedWorld` (B = 1) with per-car arrays (`xy
+(N, 2)`, `heading (N,)`, ...): the dynamics, the removal of cars and the collision checks are
+the batched world's, so one scene evolves bit for bit like a scene of any batch.
+"""
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Sequence
 
 import numpy as np
 
-from carlo_lite.collision import CollisionChecker
-from carlo_lite.kinematics import CarLimits, bicycle_step, box_corners, wrap_angle
+from carlo_lite.batched import (
+    DEFAULT_LENGTH_M,
+    DEFAULT_WHEELBASE_M,
+    DEFAULT_WIDTH_M,
+    BatchedWorld,
+)
+from carlo_lite.kinematics import CarLimits, box_corners
 from carlo_lite.road import StraightRoad
-
-DEFAULT_LENGTH_M = 4.5
-DEFAULT_WIDTH_M = 1.8
-DEFAULT_WHEELBASE_M = 2.7
-
-
-def _per_car(value: float | Sequence[float] | np.ndarray, num_cars: int, name: str) -> np.ndarray:
-    array = np.broadcast_to(np.asarray(value, dtype=float), (num_cars,)).copy()
-    if not np.all(np.isfinite(array)) or np.any(array <= 0):
-        raise ValueError(f"{name} must be finite and positive for every car")
-    return array
 
 
 class World:
@@ -39,7 +37,7 @@ class World:
 
     `step(controls)` advances every active car by `dt` with controls `(N, 2)` = [steering rad,
     acceleration m/s^2]. Inactive cars (see `deactivate`) stay where they are, take part in no
-    collision and are not drawn.
+    collision and are not drawn. `batch` is the underlying one-scene `BatchedWorld`.
     """
 
     def __init__(
@@ -57,82 +55,111 @@ class World:
         limits: CarLimits = CarLimits(),
     ) -> None:
         xy = np.array(xy, dtype=float).reshape(-1, 2)
-        num_cars = len(xy)
-        if not dt > 0:
-            raise ValueError(f"dt must be positive, got {dt}")
-        self.road = road
-        self.dt = float(dt)
-        self.limits = limits
-        self.length_m = _per_car(length_m, num_cars, "length_m")
-        self.width_m = _per_car(width_m, num_cars, "width_m")
-        self.wheelbase_m = _per_car(wheelbase_m, num_cars, "wheelbase_m")
-        self.roles = tuple(roles) if roles is not None else ("car",) * num_cars
-        if len(self.roles) != num_cars:
-            raise ValueError(f"got {len(self.roles)} roles for {num_cars} cars")
-        self._checker = CollisionChecker(self.length_m, self.width_m, road.edge_segments())
-        self._xy = np.zeros((num_cars, 2))
-        self._heading = np.zeros(num_cars)
-        self._speed = np.zeros(num_cars)
-        self.active = np.ones(num_cars, dtype=bool)
-        self.set_state(np.column_stack([xy, np.asarray(heading, float), np.asarray(speed, float)]))
+        state = _state(xy, heading, speed)
+        self.batch = BatchedWorld(
+            road,
+            state[None],
+            length_m=length_m,
+            width_m=width_m,
+            wheelbase_m=wheelbase_m,
+            roles=roles,
+            dt=dt,
+            limits=limits,
+        )
+
+    @classmethod
+    def of(cls, batch: BatchedWorld) -> World:
+        """The one-scene `batch` seen as a `World` (shared, not copied)."""
+        if batch.num_scenes != 1:
+            raise ValueError(f"a World is one scene, got a batch of {batch.num_scenes}")
+        world = cls.__new__(cls)
+        world.batch = batch
+        return world
+
+    # --- what the scene is made of ----------------------------------------------------------
+    @property
+    def road(self) -> StraightRoad:
+        return self.batch.road
+
+    @property
+    def dt(self) -> float:
+        return self.batch.dt
+
+    @property
+    def limits(self) -> CarLimits:
+        return self.batch.limits
+
+    @property
+    def roles(self) -> tuple[str, ...]:
+        return self.batch.roles
+
+    @property
+    def length_m(self) -> np.ndarray:
+        return self.batch.length_m
+
+    @property
+    def width_m(self) -> np.ndarray:
+        return self.batch.width_m
+
+    @property
+    def wheelbase_m(self) -> np.ndarray:
+        return self.batch.wheelbase_m
 
     # --- state -----------------------------------------------------------------------------
     @property
     def num_cars(self) -> int:
-        return len(self._speed)
+        return self.batch.num_cars
 
     @property
     def xy(self) -> np.ndarray:
         """Centre positions [m], (N, 2), read-only view."""
-        return self._readonly(self._xy)
+        return self.batch.xy[0]
 
     @property
     def heading(self) -> np.ndarray:
         """Headings [rad] in [-pi, pi), (N,), read-only view."""
-        return self._readonly(self._heading)
+        return self.batch.heading[0]
 
     @property
     def speed(self) -> np.ndarray:
         """Speeds [m/s], (N,), read-only view."""
-        return self._readonly(self._speed)
+        return self.batch.speed[0]
+
+    @property
+    def active(self) -> np.ndarray:
+        """(N,) bool, read-only view: the car takes part (not removed by `deactivate`)."""
+        return self.batch.active[0]
 
     @property
     def state(self) -> np.ndarray:
         """A copy of the state, (N, 4) = [x, y, heading, speed]."""
-        return np.column_stack([self._xy, self._heading, self._speed])
+        return self.batch.state[0]
+
+    @property
+    def step_count(self) -> int:
+        return int(self.batch.step_count[0])
 
     @property
     def time_s(self) -> float:
-        return self.step_count * self.dt
-
-    @staticmethod
-    def _readonly(array: np.ndarray) -> np.ndarray:
-        view = array.view()
-        view.flags.writeable = False
-        return view
+        return float(self.batch.time_s[0])
 
     def set_state(self, state: np.ndarray) -> None:
-        """Overwrite every car's state with `state` (N, 4) and restart the clock."""
+        """Overwrite every car's state with `state` (N, 4), restart the clock and bring back
+        removed cars (a new episode). ValueError unless `state` is finite (N, 4)."""
         state = np.asarray(state, dtype=float)
         if state.shape != (self.num_cars, 4) or not np.all(np.isfinite(state)):
             raise ValueError(f"state must be a finite ({self.num_cars}, 4) array")
-        self._xy[:] = state[:, :2]
-        self._heading[:] = wrap_angle(state[:, 2])
-        self._speed[:] = np.clip(state[:, 3], 0.0, self.limits.max_speed_mps)
-        self.step_count = 0
+        self.batch.restart([0], state[None])
 
     def deactivate(self, indices: int | Sequence[int] | np.ndarray) -> None:
         """Remove cars from the simulation: they freeze, never collide and are not drawn."""
-        self.active[np.asarray(indices, dtype=np.int64)] = False
+        cars = np.zeros((1, self.num_cars), dtype=bool)
+        cars[0, np.asarray(indices, dtype=np.int64)] = True
+        self.batch.deactivate(cars)
 
     def copy(self) -> World:
         """An independent copy (state arrays are copied; the road is shared, it is immutable)."""
-        clone = copy.copy(self)
-        clone._xy = self._xy.copy()
-        clone._heading = self._heading.copy()
-        clone._speed = self._speed.copy()
-        clone.active = self.active.copy()
-        return clone
+        return World.of(self.batch.copy())
 
     # --- dynamics ---------------------------------------------------------------------------
     def step(self, controls: np.ndarray) -> None:
@@ -144,84 +171,46 @@ class World:
         controls = np.asarray(controls, dtype=float)
         if controls.shape != (self.num_cars, 2):
             raise ValueError(f"controls must have shape ({self.num_cars}, 2), got {controls.shape}")
-        if (
-            not np.isfinite(controls).all()
-            and (bad := ~np.isfinite(controls).all(axis=1) & self.active).any()
-        ):
-            car = int(np.argmax(bad))
-            raise ValueError(
-                f"car {car} ({self.roles[car]}) has a non-finite control "
-                f"[steering, acceleration] = {controls[car].tolist()}"
-            )
-        all_active = self.active.all()
-        if not all_active:
-            controls = np.where(self.active[:, None], controls, 0.0)
-        xy, heading, speed = bicycle_step(
-            self._xy,
-            self._heading,
-            self._speed,
-            self.limits.clip_controls(controls),
-            self.wheelbase_m,
-            self.dt,
-            self.limits.max_speed_mps,
-        )
-        if all_active:
-            self._xy, self._heading, self._speed = xy, heading, speed
-        else:
-            self._xy[self.active] = xy[self.active]
-            self._heading[self.active] = heading[self.active]
-            self._speed[self.active] = speed[self.active]
-        self.step_count += 1
+        self.batch.step(controls[None])
 
     # --- queries ----------------------------------------------------------------------------
     def corners(self) -> np.ndarray:
         """Body rectangle corners (N, 4, 2) [m]."""
-        return box_corners(self._xy, self._heading, self.length_m, self.width_m)
+        return box_corners(self.xy, self.heading, self.length_m, self.width_m)
+
+    def bounding_boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned bounds (low (N, 2), high (N, 2)) [m] of the car bodies."""
+        low, high = self.batch.bounding_boxes()
+        return low[0], high[0]
 
     def collision_pairs(self) -> np.ndarray:
         """Pairs (K, 2), i < j, of active cars whose bodies overlap."""
-        return self._collision_pairs(*self.bounding_boxes())
+        return self.batch.collision_pairs(0)
 
     def collisions(self) -> np.ndarray:
         """(N,) bool: the car overlaps at least one other active car."""
-        return self._collisions(*self.bounding_boxes())
+        return self.incidents()[0]
 
     def off_road(self) -> np.ndarray:
         """(N,) bool: some part of an active car is outside the road edges."""
-        return self._off_road(*self.bounding_boxes())
+        return self.incidents()[1]
 
     def incidents(self) -> tuple[np.ndarray, np.ndarray]:
         """`(collisions(), off_road())` from one bounding-box computation: the cheapest way to
         check every step."""
-        low, high = self.bounding_boxes()
-        return self._collisions(low, high), self._off_road(low, high)
+        collided, off_road = self.batch.incidents()
+        return collided[0], off_road[0]
 
-    def bounding_boxes(self) -> tuple[np.ndarray, np.ndarray]:
-        """Axis-aligned bounds (low (N, 2), high (N, 2)) [m] of the car bodies."""
-        cos, sin = np.abs(np.cos(self._heading)), np.abs(np.sin(self._heading))
-        half = np.empty_like(self._xy)
-        half[:, 0] = 0.5 * (self.length_m * cos + self.width_m * sin)
-        half[:, 1] = 0.5 * (self.length_m * sin + self.width_m * cos)
-        return self._xy - half, self._xy + half
 
-    def _collision_pairs(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-        return self._checker.collision_pairs(low, high, self._xy, self._heading, self.active)
-
-    def _collisions(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-        hit = np.zeros(self.num_cars, dtype=bool)
-        hit[self._collision_pairs(low, high).ravel()] = True
-        return hit
-
-    def _off_road(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-        d_min, d_max = self.road.lateral_bounds
-        x = self._xy[:, 0]
-        if (
-            low[:, 1].min() > d_min
-            and high[:, 1].max() < d_max
-            and x.min() >= 0.0
-            and x.max() <= self.road.length_m
-        ):  # every box strictly between the (straight) edges: nothing can be off the road
-            return np.zeros(self.num_cars, dtype=bool)
-        touching = self._checker.edge_contacts(low, high, self._xy, self._heading, self.active)
-        lane = self.road.lane_index(self._xy)
-        return (touching | (lane < 0)) & self.active
+def _state(xy: np.ndarray, heading: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """(N, 4) state from the per-car arrays; ValueError unless finite and of matching sizes."""
+    num_cars = len(xy)
+    try:
+        state = np.column_stack(
+            [xy, np.asarray(heading, dtype=float), np.asarray(speed, dtype=float)]
+        )
+    except ValueError:
+        state = None
+    if state is None or state.shape != (num_cars, 4) or not np.all(np.isfinite(state)):
+        raise ValueError(f"state must be a finite ({num_cars}, 4) array")
+    return state

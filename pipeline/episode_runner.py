@@ -3,8 +3,8 @@ Ctrl-C handled between episodes (`DeferredSignals`); pipeline.generation plans t
 and writes the dataset.
 
 Episodes are rolled out `batch_scenes` at a time as one batched world
-(`scenarios.batched_rollout.rollout_batch`), or one by one with `scenarios.rollout` when
-`batch_scenes` is 1; both give the same episodes, bit for bit. The result is the episodes in
+(`scenarios.rollout_batch`; 1: one by one); a scene's episode does not depend on the batch it
+runs in, bit for bit. The result is the episodes in
 slot order, whatever the number of workers, the backend or the batch size.
 """
 
@@ -19,9 +19,8 @@ from typing import TYPE_CHECKING
 from tqdm import tqdm
 
 from pipeline.signals import DeferredSignals
-from scenarios import SCENARIOS, Scenario
-from scenarios.batched_rollout import rollout_batch
-from scenarios.rollout import Episode, rollout
+from scenarios import VERSIONS, Scenario
+from scenarios.rollout import Episode, rollout_batch
 
 if TYPE_CHECKING:
     from pipeline.generation import Slot
@@ -40,7 +39,7 @@ _STOP = None  # in a pool worker, the pool's stop event (set by _init_worker); e
 
 def _load_scenario(scenario_name: str) -> None:
     global _SCENARIO
-    _SCENARIO = SCENARIOS[scenario_name]()
+    _SCENARIO = VERSIONS[scenario_name].make()
 
 
 def _init_worker(scenario_name: str, stop) -> None:
@@ -54,9 +53,7 @@ def _init_worker(scenario_name: str, stop) -> None:
 
 
 def _run_batch(slots: list[Slot]) -> list[Episode]:
-    """Roll out `slots` with the loaded scenario: one batched world, or `rollout` for one."""
-    if len(slots) == 1:
-        return [rollout(_SCENARIO, slots[0].seed, slots[0].case)]
+    """Roll out `slots` with the loaded scenario as one batched world."""
     return rollout_batch(_SCENARIO, [slot.seed for slot in slots], [slot.case for slot in slots])
 
 

@@ -1,6 +1,6 @@
 """Dataset generation as one library call: a validated config in, an HDF5 dataset file out.
 
-    config = GenerateConfig.for_scenario("halting_car_v1", minor_ratio=0.3)
+    config = GenerateConfig.for_scenario("halting_car_v3", minor_ratio=0.3)
     result = generate_dataset(config, default_output(config), workers=2)
     print(result.summary())
 
@@ -45,7 +45,7 @@ from pipeline.backends import BACKENDS
 from pipeline.episode_runner import DEFAULT_BATCH_SCENES, run_slots
 from pipeline.signals import DeferredSignals
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
-from scenarios import SCENARIOS, Scenario
+from scenarios import FAMILIES, VERSIONS, Scenario, lookup, resolve
 from scenarios.base import BROWN, GREEN
 from scenarios.rollout import Episode
 
@@ -72,7 +72,7 @@ class GenerateConfig:
     line naming the field, on a value out of range.
     """
 
-    scenario: str  # a name in scenarios.SCENARIOS
+    scenario: str  # a version name, family_vN (scenarios.version_names())
     major_case: str  # the frequent case, one of the scenario's case_names
     minor_case: str  # the rare case: another of the scenario's case_names
     num_major: int = 50  # training + validation trajectories of the major case, >= 1
@@ -83,7 +83,7 @@ class GenerateConfig:
 
     def __post_init__(self) -> None:
         _check_scenario(self.scenario)
-        cases = SCENARIOS[self.scenario].case_names
+        cases = VERSIONS[self.scenario].scenario_class.case_names
         for field, value in (("major_case", self.major_case), ("minor_case", self.minor_case)):
             if value not in cases:
                 raise ValueError(
@@ -119,15 +119,17 @@ class GenerateConfig:
         seed: int = 0,
     ) -> GenerateConfig:
         """The config with the scenario's defaults filled in (what tools/generate.py builds);
-        `scenario` defaults to DEFAULT_SCENARIO.
+        `scenario` defaults to DEFAULT_SCENARIO; a bare family name means its latest version
+        (with a `scenarios.LatestVersionNotice` warning), which the config records.
 
         `major_case` defaults to the scenario's `default_major_case`; the minor case is the other
         case. The minor count is `num_minor` if given, else round(minor_ratio x num_major) with
         `minor_ratio` in [0, MAX_MINOR_RATIO] (default DEFAULT_MINOR_RATIO); give one, not both.
         """
-        _check_scenario(scenario)
-        cases = SCENARIOS[scenario].case_names
-        major = SCENARIOS[scenario].default_major_case if major_case is None else major_case
+        version = resolve(scenario, stacklevel=3)
+        scenario, code = version.name, version.scenario_class
+        cases = code.case_names
+        major = code.default_major_case if major_case is None else major_case
         if minor_ratio is not None and num_minor is not None:
             raise ValueError("give either minor_ratio or num_minor, not both")
         if num_minor is None:
@@ -141,8 +143,14 @@ class GenerateConfig:
 
 
 def _check_scenario(name: str) -> None:
-    if name not in SCENARIOS:
-        raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(sorted(SCENARIOS))}")
+    """ValueError unless `name` is a registered version (a family name is refused here: the
+    config records the exact version; `for_scenario` resolves family names)."""
+    if name in FAMILIES:
+        raise ValueError(
+            f"scenario must name a version, e.g. {FAMILIES[name][-1].name}, got the family "
+            f"name {name!r} (GenerateConfig.for_scenario resolves it to the latest version)"
+        )
+    lookup(name)  # ValueError listing the valid names
 
 
 def _is_number(value: object) -> bool:
@@ -461,7 +469,7 @@ def generate_dataset(
         address=address,
         batch_scenes=batch_scenes,
     )
-    scenario = SCENARIOS[config.scenario]()
+    scenario = VERSIONS[config.scenario].make()
     splits = _build_splits(slots, episodes, scenario)
     meta = _dataset_meta(config, scenario, rejected)
     write_dataset(out, meta, splits, overwrite=overwrite)

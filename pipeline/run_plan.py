@@ -82,10 +82,10 @@ def digest(value: object) -> str:
 
 def data_spec(protocol: Protocol, setting: Setting) -> DataSpec:
     """The dataset a setting uses under a protocol."""
-    from scenarios import SCENARIOS
+    from scenarios import VERSIONS
 
     num_major, num_minor = protocol.counts(setting)
-    config = asdict(SCENARIOS[setting.scenario]().config)
+    config = asdict(VERSIONS[setting.scenario].config())
     return DataSpec(
         setting.scenario,
         setting.major_case,

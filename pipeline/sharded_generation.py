@@ -44,7 +44,7 @@ from pipeline.generation import (
     rollout_session,
 )
 from predictor.shards import ShardedWriter, check_target
-from scenarios import SCENARIOS
+from scenarios import VERSIONS
 from scenarios.rollout import Episode
 
 # what a shard hands to its writer: split, position in the split, episodes in plan order
@@ -85,7 +85,7 @@ def generate_sharded(
             errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(out.parent)
         ) from None
     start = time.perf_counter()
-    scenario = SCENARIOS[config.scenario]()
+    scenario = VERSIONS[config.scenario].make()
     meta = _dataset_meta(config, scenario, 0)
     # the shards' config: the generator's and the scenario's; the index adds the total of
     # rejected episodes, known only at the end

@@ -1,80 +1,77 @@
-"""Double Merge and Halting Car: synthetic multi-agent driving scenarios on carlo_lite.
+"""Double Merge and Halting Car: synthetic multi-agent driving scenarios on carlo_lite, as
+versioned families (Gymnasium's naming: `double_merge_v1`, `halting_car_v3`).
 
-Plain scenario classes (`DoubleMerge`, `HaltingCar`, registered in `SCENARIOS`) draw randomised
-episodes from a seed and drive every car with an expert policy; `rollout` records one episode as
-numpy arrays, and `rollout_batch` records many episodes at once as one batched world (the same
-arrays, several times faster). The PettingZoo environments are the submodules `double_merge_v0`,
-`double_merge_v1`, `halting_car_v0` ... `halting_car_v3` (imported on demand:
-`from scenarios import halting_car_v1`). The v1 scenarios (`ReactiveDoubleMerge`,
-`ReactiveHaltingCar`, registered as "double_merge_v1" and "halting_car_v1") make each labelled
-car's observed state decide the attending car's future; Halting Car v2 (`LateBrakeHaltingCar`,
-"halting_car_v2") leaves the follower's own history nothing of it, and Halting Car v3
-(`FixedBrakeHaltingCar`, "halting_car_v3") makes the leader's observed braking the same in every
-`stop` scene; docs/scenarios.md compares the versions.
+    import scenarios
+    env = scenarios.halting_car_v3.parallel_env()          # PettingZoo, one scene
+    vec = scenarios.halting_car_v3.vector_env(num_envs=64)  # many scenes at once, for RL
+    scenario = scenarios.make("halting_car_v3")            # plain class: plans and expert
+    episode = scenarios.rollout(scenario, seed=0, case="stop")
+
+Versions are data (`scenarios.versions`, one entry each); `make`, `version` and `env_module`
+take an exact name or a bare family name, which means the latest version and says so
+(`LatestVersionNotice`). Each version has an environment module `scenarios.<name>`
+(`parallel_env`, `env`, `raw_env`, `vector_env`). `rollout` records one episode as numpy arrays,
+`rollout_batch` many at once as one batched world (the same arrays, several times faster);
+docs/scenarios.md compares the versions.
 """
 
-import importlib
 from types import ModuleType
 
 from scenarios.base import ROLE_NAMES, Scenario, ScenarioConfig, ScenarioPlan
-from scenarios.batched_rollout import rollout_batch
 from scenarios.double_merge import DoubleMerge, DoubleMergeConfig, DoubleMergePlan
 from scenarios.double_merge_reactive import (
     ReactiveDoubleMerge,
     ReactiveDoubleMergeConfig,
     ReactiveDoubleMergePlan,
 )
+from scenarios.env_modules import install
 from scenarios.halting_car import HaltingCar, HaltingCarConfig, HaltingCarPlan
-from scenarios.halting_car_fixed_brake import FixedBrakeHaltingCar, FixedBrakeHaltingCarConfig
-from scenarios.halting_car_late import LateBrakeHaltingCar, LateBrakeHaltingCarConfig
 from scenarios.halting_car_reactive import (
     ReactiveHaltingCar,
     ReactiveHaltingCarConfig,
     ReactiveHaltingCarPlan,
 )
-from scenarios.rollout import Episode, advance, rollout
+from scenarios.registry import (
+    FAMILIES,
+    VERSIONS,
+    LatestVersionNotice,
+    choices_text,
+    lookup,
+    make,
+    resolve,
+    stored_version,
+    version_names,
+)
+from scenarios.rollout import Episode, advance, rollout, rollout_batch
+from scenarios.versioning import ScenarioVersion
 
-ENV_MODULES: dict[str, str] = {  # scenario name -> its PettingZoo environment module
-    "double_merge": "scenarios.double_merge_v0",
-    "double_merge_v1": "scenarios.double_merge_v1",
-    "halting_car": "scenarios.halting_car_v0",
-    "halting_car_v1": "scenarios.halting_car_v1",
-    "halting_car_v2": "scenarios.halting_car_v2",
-    "halting_car_v3": "scenarios.halting_car_v3",
-}
+ENV_MODULES = install(globals())  # version name -> scenarios.<name>
 
-SCENARIOS: dict[str, type[Scenario]] = {
-    DoubleMerge.name: DoubleMerge,
-    ReactiveDoubleMerge.name: ReactiveDoubleMerge,
-    HaltingCar.name: HaltingCar,
-    ReactiveHaltingCar.name: ReactiveHaltingCar,
-    LateBrakeHaltingCar.name: LateBrakeHaltingCar,
-    FixedBrakeHaltingCar.name: FixedBrakeHaltingCar,
-}
+
+def version(name: str) -> ScenarioVersion:
+    """The registered version `name` (a bare family name: its latest, with a notice)."""
+    return resolve(name, stacklevel=3)
 
 
 def env_module(name: str) -> ModuleType:
-    """The PettingZoo environment module of scenario `name` (`parallel_env`, `env`, `raw_env`)."""
-    if name not in ENV_MODULES:
-        raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(sorted(ENV_MODULES))}")
-    return importlib.import_module(ENV_MODULES[name])
+    """The PettingZoo environment module of version `name` (`parallel_env`, `env`, `raw_env`,
+    `vector_env`); a bare family name is its latest version, with a notice."""
+    return ENV_MODULES[resolve(name, stacklevel=3).name]
 
 
 __all__ = [
     "ENV_MODULES",
+    "FAMILIES",
     "ROLE_NAMES",
-    "SCENARIOS",
+    "VERSIONS",
     "DoubleMerge",
     "DoubleMergeConfig",
     "DoubleMergePlan",
     "Episode",
-    "FixedBrakeHaltingCar",
-    "FixedBrakeHaltingCarConfig",
     "HaltingCar",
     "HaltingCarConfig",
     "HaltingCarPlan",
-    "LateBrakeHaltingCar",
-    "LateBrakeHaltingCarConfig",
+    "LatestVersionNotice",
     "ReactiveDoubleMerge",
     "ReactiveDoubleMergeConfig",
     "ReactiveDoubleMergePlan",
@@ -84,8 +81,17 @@ __all__ = [
     "Scenario",
     "ScenarioConfig",
     "ScenarioPlan",
+    "ScenarioVersion",
     "advance",
+    "choices_text",
     "env_module",
+    "lookup",
+    "make",
+    "resolve",
     "rollout",
     "rollout_batch",
+    "stored_version",
+    "version",
+    "version_names",
+    *ENV_MODULES,
 ]

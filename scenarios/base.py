@@ -1,10 +1,11 @@
-"""What every scenario shares: configuration, roles, the road, distractors and the expert's
-control assembly.
+"""What every scenario shares: configuration, roles, the road, distractors, and the plan of an
+episode.
 
 A scenario is a plain class (no PettingZoo). Per episode it draws a *plan* (initial states and
-every random timing) from a `numpy.random.Generator`, builds a `carlo_lite.World`, and then, at
-every control step, `update(world)` advances its small state machine from what it observes and
-`expert_actions(world)` returns the expert's controls for all cars as one (N, 2) array.
+every random timing) from a `numpy.random.Generator`; its expert (`scenarios.expert.Expert`)
+drives one scene per plan in a `carlo_lite.BatchedWorld`, and at every control step
+`update(world)` advances its small state machine from what it observes and
+`expert_actions(world)` returns the controls of all cars of all scenes as one (B, N, 2) array.
 `expert_actions` is a pure function of the world and that state machine, so it can be called
 any number of times per step.
 
@@ -16,13 +17,17 @@ from __future__ import annotations
 
 import dataclasses
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from carlo_lite import CarLimits, StraightRoad, World
-from scenarios.controllers import LateralGains, lateral_steering, speed_tracking_accel
+from carlo_lite import CarLimits, StraightRoad
+from scenarios.controllers import LateralGains
+
+if TYPE_CHECKING:
+    from scenarios.expert import Expert
 
 ROLE_NAMES: tuple[str, ...] = ("main_green", "main_brown", "distractor")
 GREEN, BROWN, DISTRACTOR = 0, 1, 2  # indices into ROLE_NAMES; also the main cars' agent indices
@@ -139,29 +144,33 @@ def sample_distractors(
 
 
 class Scenario(ABC):
-    """Base of the scenarios: subclasses draw a plan and steer the two main cars.
+    """Base of the scenarios: a configuration, the road and roles, the random plan of an
+    episode, and the expert that drives B such episodes at once (`expert_class`).
 
-    Class attributes: `name`, `case_names`, `default_major_case`, `role_names`, `config_class`.
+    Class attributes: `case_names`, `default_major_case`, `role_names`, `config_class`,
+    `expert_class`, and `default_name`, the name of the version this code first served. An
+    instance's `name` is the version it runs (`scenarios.make("halting_car_v3")` gives the
+    reactive Halting Car with v3's settings and that name).
     """
 
-    name: ClassVar[str]
+    default_name: ClassVar[str]
     case_names: ClassVar[tuple[str, ...]]
     default_major_case: ClassVar[str]
     role_names: ClassVar[tuple[str, ...]] = ROLE_NAMES
     config_class: ClassVar[type[ScenarioConfig]] = ScenarioConfig
+    expert_class: ClassVar[type[Expert]]
 
-    def __init__(self, config: ScenarioConfig | None = None) -> None:
+    def __init__(self, config: ScenarioConfig | None = None, *, name: str | None = None) -> None:
         config = self.config_class() if config is None else config
         if not isinstance(config, self.config_class):
-            raise TypeError(f"{self.name} needs a {self.config_class.__name__}")
+            raise TypeError(f"{type(self).__name__} needs a {self.config_class.__name__}")
         self.config = config
+        self.name = self.default_name if name is None else name
         self.road = StraightRoad(config.num_lanes, config.lane_width_m, config.road_length_m)
         self.roles = np.array(
             [GREEN, BROWN] + [DISTRACTOR] * config.num_distractors, dtype=np.int8
         )  # (N,) index into role_names
         self.role_labels = tuple(ROLE_NAMES[role] for role in self.roles)
-        self.plan: ScenarioPlan | None = None
-        self.case: str | None = None
 
     @property
     def num_cars(self) -> int:
@@ -176,91 +185,42 @@ class Scenario(ABC):
             raise ValueError(f"{self.name}: unknown case {case!r}; choose from {self.case_names}")
         return case
 
-    # --- episode ----------------------------------------------------------------------------
     @abstractmethod
     def sample_plan(self, rng: np.random.Generator, case: str) -> ScenarioPlan:
         """Draw every random quantity of an episode (initial states, timings) from `rng`."""
 
+    def plan(self, seed: int, case: str) -> ScenarioPlan:
+        """The plan of the episode of `seed` and `case`: `sample_plan(default_rng(seed), case)`."""
+        return self.sample_plan(np.random.default_rng(seed), self.check_case(case))
+
+    def expert(self, plans: Sequence[ScenarioPlan]) -> Expert:
+        """The expert driving one scene per plan (`scenarios.expert.Expert`)."""
+        return self.expert_class(self, plans)
+
+    # --- the environment's user manual (scenarios.manual) ----------------------------------
+    @classmethod
     @abstractmethod
-    def _reset_memory(self) -> None:
-        """Reset the expert's state machine at the start of an episode."""
+    def manual_description(cls, config: ScenarioConfig) -> str:
+        """The manual's "Description": what the cars do, with `config`'s values."""
 
-    def reset(
-        self,
-        rng: np.random.Generator | int | None,
-        case: str,
-        plan: ScenarioPlan | None = None,
-    ) -> World:
-        """Start an episode of `case`: draw a plan (unless given) and build its world."""
-        self.check_case(case)
-        if plan is None:
-            rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-            plan = self.sample_plan(rng, case)
-        self.plan, self.case = plan, case
-        self._reset_memory()
-        config = self.config
-        state = plan.initial_state
-        return World(
-            self.road,
-            state[:, :2],
-            state[:, 2],
-            state[:, 3],
-            length_m=config.car_length_m,
-            width_m=config.car_width_m,
-            wheelbase_m=config.wheelbase_m,
-            roles=self.role_labels,
-            dt=config.dt_sim,
-            limits=config.limits,
-        )
-
+    @classmethod
     @abstractmethod
-    def update(self, world: World) -> None:
-        """Advance the expert's state machine from the current world (once per control step)."""
+    def manual_starting_state(cls, config: ScenarioConfig) -> str:
+        """The manual's "Starting State" (the main cars; distractors are added)."""
 
-    # --- expert -----------------------------------------------------------------------------
-    def expert_actions(self, world: World) -> np.ndarray:
-        """Expert controls (N, 2) float32 [steering rad, acceleration m/s^2] for every car.
-
-        float32 so that a recorded action is exactly the control that was applied.
-        """
-        # Lateral references are taken half a period ahead: the hold delays the response.
-        control_time = world.time_s + 0.5 * self.control_period_s
-        target, rate, accel_ff = self._lateral_references(world, control_time)
-        steering = lateral_steering(
-            world.xy[:, 1],
-            world.heading,
-            world.speed,
-            target,
-            rate,
-            self.config.wheelbase_m,
-            self.config.lateral_gains,
-            accel_ff,
-        )
-        acceleration = self._accelerations(world)
-        return np.stack([steering, acceleration], axis=1).astype(np.float32)
-
-    def _lateral_references(
-        self, world: World, control_time: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Lateral reference, rate, acceleration (N,) each; default: keep the starting lane."""
-        num_cars = self.num_cars
-        return self.plan.lane_y.copy(), np.zeros(num_cars), np.zeros(num_cars)
-
-    def _accelerations(self, world: World) -> np.ndarray:
-        """Accelerations (N,); default: track each car's cruising speed."""
-        limits = self.config.limits
-        return speed_tracking_accel(
-            world.speed,
-            self.plan.target_speed,
-            self.config.speed_gain_per_s,
-            limits.max_accel_mps2,
-            limits.max_decel_mps2,
-        )
-
+    @classmethod
     @abstractmethod
-    def attention_labels(self, world: World) -> np.ndarray:
-        """(N,) int16: index of the car each car reacts to, -1 for none."""
+    def manual_labels(cls, config: ScenarioConfig) -> str:
+        """Whom each car attends to and when the interaction period is, for "Infos"."""
 
-    @abstractmethod
-    def interaction(self, world: World) -> bool:
-        """Whether the current step lies in the scenario's interaction period."""
+    @classmethod
+    def manual_split_note(cls, config: ScenarioConfig) -> str:
+        """Why the suggested observed / predicted split is where it is (may be empty)."""
+        return ""
+
+
+def span(bounds: Range, unit: str = "") -> str:
+    """A range for prose: "2.4 to 3 s", or "4 m/s^2" when both ends are equal."""
+    low, high = (f"{value:g}" for value in bounds)
+    text = low if low == high else f"{low} to {high}"
+    return f"{text} {unit}".rstrip()

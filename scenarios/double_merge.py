@@ -25,12 +25,13 @@ predicted part, while the front car's manoeuvre starts in the observed part.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
 
-from carlo_lite import World
+from carlo_lite import BatchedWorld
 from scenarios.base import (
     BROWN,
     GREEN,
@@ -40,9 +41,11 @@ from scenarios.base import (
     ScenarioConfig,
     ScenarioPlan,
     sample_distractors,
+    span,
     uniform,
 )
 from scenarios.controllers import lane_change_reference
+from scenarios.expert import Expert
 
 
 @dataclass(frozen=True)
@@ -93,13 +96,108 @@ class RearPhase(IntEnum):
     DONE = 4  # in the target lane
 
 
-class DoubleMerge(Scenario):
-    """Double Merge scenario (see the module docstring)."""
+class DoubleMergeExpert(Expert):
+    """Double Merge v0's expert over B scenes (see the module docstring): the rear car's
+    phase, the time it saw the front car settled and its merge start are (B,) arrays."""
 
-    name = "double_merge"
+    plan_fields = (
+        "front",
+        "rear",
+        "wait_offset_m",
+        "front_change_start_s",
+        "front_change_duration_s",
+        "rear_approach_start_s",
+        "rear_approach_duration_s",
+        "reaction_delay_s",
+        "rear_change_duration_s",
+    )
+
+    def __init__(self, scenario: DoubleMerge, plans: Sequence[DoubleMergePlan]) -> None:
+        super().__init__(scenario, plans)
+        labels = np.full(self.num_cars, NO_ATTENTION, dtype=np.int16)
+        labels[GREEN], labels[BROWN] = BROWN, GREEN  # the main cars attend to each other
+        self._labels = np.tile(labels, (self.num_scenes, 1))  # (B, N)
+
+    def _derive(self) -> None:
+        self.front_car = self.offsets + self.front  # (B,) flat car indices
+        self.rear_car = self.offsets + self.rear
+        self.front_lane = self.lane_y[self.front_car]  # (B,) y [m] of the lane centres
+        self.rear_lane = self.lane_y[self.rear_car]
+        toward = np.sign(self.front_lane - self.rear_lane)
+        self.waiting_y = self.rear_lane + toward * self.wait_offset_m
+
+    def _fresh_memory(self, count: int) -> dict[str, np.ndarray]:
+        return {
+            "rear_phase": np.full(count, RearPhase.KEEP, dtype=np.int8),
+            "front_done": np.zeros(count, dtype=bool),
+            "front_done_time_s": np.full(count, np.nan),
+            "merge_start_s": np.full(count, np.nan),
+        }
+
+    def front_settled(self, world: BatchedWorld) -> np.ndarray:
+        """(B,) the front car has finished its lane change, as the rear car can see it (a
+        removed front car no longer blocks the rear car)."""
+        _, y, heading, _ = self.flat(world)
+        lateral_error = np.abs(y[self.front_car] - self.rear_lane)
+        settled = (lateral_error < self.config.settled_lateral_tol_m) & (
+            np.abs(heading[self.front_car]) < self.config.settled_heading_tol_rad
+        )
+        return settled | ~world.active.reshape(-1)[self.front_car]
+
+    def update(self, world: BatchedWorld) -> None:
+        time_s = world.time_s  # (B,)
+        now = time_s + 1e-9  # tolerate rounding of step_count * dt
+        seen = ~self.front_done & self.front_settled(world)
+        self.front_done_time_s[seen] = time_s[seen]
+        self.front_done |= seen
+        phase = self.rear_phase
+        approach_end = self.rear_approach_start_s + self.rear_approach_duration_s
+        phase[(phase == RearPhase.KEEP) & (now >= self.rear_approach_start_s)] = RearPhase.APPROACH
+        phase[(phase == RearPhase.APPROACH) & (now >= approach_end)] = RearPhase.WAIT
+        merging = (
+            (phase == RearPhase.WAIT)
+            & self.front_done
+            & (now >= self.front_done_time_s + self.reaction_delay_s)
+        )
+        phase[merging] = RearPhase.MERGE
+        self.merge_start_s[merging] = time_s[merging]
+        merge_end = self.merge_start_s + self.rear_change_duration_s
+        phase[(phase == RearPhase.MERGE) & (now >= merge_end)] = RearPhase.DONE
+
+    def _lateral_references(
+        self, world: BatchedWorld, control_time: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        target, rate, accel = super()._lateral_references(world, control_time)
+        before = self.rear_phase < RearPhase.MERGE
+        rear_start = np.where(before, self.rear_approach_start_s, self.merge_start_s)
+        rear_duration = np.where(before, self.rear_approach_duration_s, self.rear_change_duration_s)
+        rear_origin = np.where(before, self.rear_lane, self.waiting_y)
+        rear_goal = np.where(before, self.waiting_y, self.front_lane)
+        start = np.stack([self.front_change_start_s, rear_start], axis=1)  # (B, 2) front, rear
+        duration = np.stack([self.front_change_duration_s, rear_duration], axis=1)
+        origin = np.stack([self.front_lane, rear_origin], axis=1)
+        goal = np.stack([self.rear_lane, rear_goal], axis=1)
+        cars = np.stack([self.front_car, self.rear_car], axis=1)  # (B, 2)
+        target[cars], rate[cars], accel[cars] = lane_change_reference(
+            control_time[:, None], start, duration, origin, goal
+        )
+        return target, rate, accel
+
+    def attention_labels(self, world: BatchedWorld) -> np.ndarray:
+        return self._labels.copy()
+
+    def interaction(self, world: BatchedWorld) -> np.ndarray:
+        return self.rear_phase == RearPhase.WAIT
+
+
+class DoubleMerge(Scenario):
+    """Double Merge v0 (see the module docstring): plans and the manual's text."""
+
+    default_name = "double_merge_v0"
     case_names = ("major", "minor")
     default_major_case = "major"
     config_class = DoubleMergeConfig
+    expert_class = DoubleMergeExpert
 
     def sample_plan(self, rng: np.random.Generator, case: str) -> DoubleMergePlan:
         """Draw an episode; the draws do not depend on `case`, only the car order does."""
@@ -138,85 +236,31 @@ class DoubleMerge(Scenario):
             **timings,
         )
 
-    def _reset_memory(self) -> None:
-        self.rear_phase = RearPhase.KEEP
-        self.front_done_time_s: float | None = None
-        self.merge_start_s: float | None = None
-        labels = np.full(self.num_cars, NO_ATTENTION, dtype=np.int16)
-        labels[GREEN], labels[BROWN] = BROWN, GREEN
-        self._labels = labels
-
-    def front_settled(self, world: World) -> bool:
-        """The front car has finished its lane change, as the rear car can see it."""
-        plan: DoubleMergePlan = self.plan
-        front = plan.front
-        if not world.active[front]:
-            return True  # a removed front car no longer blocks the rear car
-        lateral_error = abs(world.xy[front, 1] - plan.lane_y[plan.rear])
-        return bool(
-            lateral_error < self.config.settled_lateral_tol_m
-            and abs(world.heading[front]) < self.config.settled_heading_tol_rad
+    @classmethod
+    def manual_description(cls, config: DoubleMergeConfig) -> str:
+        return (
+            f"The green car (`car_0`, lane {config.green_lane}) and the brown car (`car_1`, "
+            f"lane {config.brown_lane}) want each other's lane. The front one changes lane "
+            f"{span(config.front_change_start_s, 's')} into the episode, in "
+            f"{span(config.front_change_duration_s, 's')}; the rear one moves next to the centre "
+            f"line and waits until it sees the front car settled in the target lane, then merges "
+            f"after a reaction delay of {span(config.reaction_delay_s, 's')}, in "
+            f"{span(config.rear_change_duration_s, 's')}. Case `major`: the green car starts "
+            f"behind the brown car; case `minor`: ahead of it."
         )
 
-    def update(self, world: World) -> None:
-        plan: DoubleMergePlan = self.plan
-        now = world.time_s + 1e-9  # tolerate rounding of step_count * dt
-        if self.front_done_time_s is None and self.front_settled(world):
-            self.front_done_time_s = world.time_s
-        phase = self.rear_phase
-        if phase == RearPhase.KEEP and now >= plan.rear_approach_start_s:
-            phase = RearPhase.APPROACH
-        if (
-            phase == RearPhase.APPROACH
-            and now >= plan.rear_approach_start_s + plan.rear_approach_duration_s
-        ):
-            phase = RearPhase.WAIT
-        if (
-            phase == RearPhase.WAIT
-            and self.front_done_time_s is not None
-            and now >= self.front_done_time_s + plan.reaction_delay_s
-        ):
-            phase, self.merge_start_s = RearPhase.MERGE, world.time_s
-        if phase == RearPhase.MERGE and now >= self.merge_start_s + plan.rear_change_duration_s:
-            phase = RearPhase.DONE
-        self.rear_phase = phase
-
-    def _lateral_references(
-        self, world: World, control_time: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        target, rate, accel = super()._lateral_references(world, control_time)
-        plan: DoubleMergePlan = self.plan
-        front, rear = plan.front, plan.rear
-        front_lane, rear_lane = plan.lane_y[front], plan.lane_y[rear]
-        waiting_y = rear_lane + np.sign(front_lane - rear_lane) * plan.wait_offset_m
-        if self.rear_phase < RearPhase.MERGE:
-            rear_move = (
-                plan.rear_approach_start_s,
-                plan.rear_approach_duration_s,
-                rear_lane,
-                waiting_y,
-            )
-        else:
-            rear_move = (self.merge_start_s, plan.rear_change_duration_s, waiting_y, front_lane)
-        front_move = (
-            self.front_change_start(),
-            plan.front_change_duration_s,
-            front_lane,
-            rear_lane,
+    @classmethod
+    def manual_starting_state(cls, config: DoubleMergeConfig) -> str:
+        return (
+            f"Main cars on their lane centres, heading 0, at a common random cruising speed "
+            f"({span(config.cruise_speed_mps, 'm/s')}, +-{config.speed_jitter_mps:g} m/s); the "
+            f"rear one at x in [{span(config.rear_start_x_m).replace(' to ', ', ')}] m, the "
+            f"front one {span(config.main_gap_m, 'm')} ahead."
         )
-        start, duration, origin, goal = np.array([front_move, rear_move]).T  # (2,) each
-        cars = [front, rear]
-        target[cars], rate[cars], accel[cars] = lane_change_reference(
-            control_time, start, duration, origin, goal
+
+    @classmethod
+    def manual_labels(cls, config: DoubleMergeConfig) -> str:
+        return (
+            'the main cars attend to each other (the paper\'s "Correct" oracle), the others to '
+            "nobody; `interaction`: the rear main car is waiting next to the centre line"
         )
-        return target, rate, accel
-
-    def front_change_start(self) -> float:
-        """When the front car's lane change starts [s] (v0: the planned time)."""
-        return self.plan.front_change_start_s
-
-    def attention_labels(self, world: World) -> np.ndarray:
-        return self._labels.copy()
-
-    def interaction(self, world: World) -> bool:
-        return self.rear_phase == RearPhase.WAIT

@@ -32,14 +32,22 @@ front car leave its lane until the rear car starts its own lane change.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from carlo_lite import World
-from scenarios.base import BROWN, GREEN, NO_ATTENTION, Range
-from scenarios.controllers import IDMParams, idm_accel, speed_tracking_accel
-from scenarios.double_merge import DoubleMerge, DoubleMergeConfig, DoubleMergePlan, RearPhase
+from carlo_lite import BatchedWorld
+from scenarios.base import Range, span
+from scenarios.controllers import IDMParams
+from scenarios.double_merge import (
+    DoubleMerge,
+    DoubleMergeConfig,
+    DoubleMergeExpert,
+    DoubleMergePlan,
+    RearPhase,
+)
+from scenarios.expert import History, python_min, scalar_idm_accel
 
 
 @dataclass(frozen=True)
@@ -75,11 +83,91 @@ class ReactiveDoubleMergePlan(DoubleMergePlan):
     front_reaction_steps: int = 4
 
 
-class ReactiveDoubleMerge(DoubleMerge):
-    """Double Merge v1 (see the module docstring)."""
+class ReactiveDoubleMergeExpert(DoubleMergeExpert):
+    """Double Merge v1's expert over B scenes: v0's lane changes, with the rear car's car
+    following (delayed, a `History` of its intended accelerations) and the front car's pacing
+    (a `History` of the rear car's speeds)."""
 
-    name = "double_merge_v1"
+    plan_fields = (
+        *DoubleMergeExpert.plan_fields,
+        "cruise_speed_mps",
+        "rear_reaction_steps",
+        "front_reaction_steps",
+    )
+
+    def __init__(self, scenario: ReactiveDoubleMerge, plans: Sequence[ReactiveDoubleMergePlan]):
+        super().__init__(scenario, plans)
+        steps = self.config.num_steps
+        self._rear_seen = History(self.num_scenes, steps)  # rear car's intended accelerations
+        self._rear_speeds = History(self.num_scenes, steps)  # rear car's speeds
+
+    def _fresh_memory(self, count: int) -> dict[str, np.ndarray]:
+        # following: the rear car has seen the front car leave its lane
+        return {**super()._fresh_memory(count), "following": np.zeros(count, dtype=bool)}
+
+    def restart(self, scenes, plans, world: BatchedWorld) -> None:
+        super().restart(scenes, plans, world)
+        self._rear_seen.restart(scenes)
+        self._rear_speeds.restart(scenes)
+
+    def update(self, world: BatchedWorld) -> None:
+        _, y, _, speed = self.flat(world)
+        departure = (y[self.front_car] - self.front_lane) * np.sign(
+            self.rear_lane - self.front_lane
+        )
+        front_present = world.active.reshape(-1)[self.front_car]
+        self.following |= front_present & (departure >= self.config.follow_trigger_m)
+        super().update(world)
+        self._rear_seen.append(self._rear_intended_accel(world))
+        self._rear_speeds.append(speed[self.rear_car])
+
+    def _rear_intended_accel(self, world: BatchedWorld) -> np.ndarray:
+        """(B,) the rear car's acceleration for the scene now: cruise, and once it has seen the
+        front car leave its lane the IDM towards it (the lower of the two); a removed front
+        car is no longer followed."""
+        x, _, _, speed = self.flat(world)
+        active = world.active.reshape(-1)
+        rear_speed = speed[self.rear_car]
+        accel = self.track(rear_speed, self.cruise_speed_mps)
+        closing = rear_speed - speed[self.front_car]
+        gap = x[self.front_car] - x[self.rear_car] - self.config.car_length_m
+        both = active[self.front_car] & active[self.rear_car]
+        if not both.all():
+            gap = np.where(both, gap, np.inf)
+        follow = scalar_idm_accel(
+            rear_speed,
+            self.cruise_speed_mps,
+            gap,
+            closing,
+            self.config.idm.time_headway_s,
+            self.config.idm,
+        )
+        following = self.following & active[self.front_car]
+        return np.where(following, python_min(accel, follow), accel)
+
+    def _accelerations(self, world: BatchedWorld) -> np.ndarray:
+        accel = super()._accelerations(world)
+        speeds, intended = self._rear_speeds, self._rear_seen
+        seen = ~speeds.empty()  # before the first update: cruise, as in v0
+        if seen.any():
+            target = speeds.delayed(self.front_reaction_steps) + self.config.pace_margin_mps
+            _, _, _, speed = self.flat(world)
+            pacing = self.track(speed[self.front_car], target)
+            accel[self.front_car] = np.where(seen, pacing, accel[self.front_car])
+            delayed = intended.delayed(self.rear_reaction_steps)
+            accel[self.rear_car] = np.where(seen, delayed, accel[self.rear_car])
+        return accel
+
+    def interaction(self, world: BatchedWorld) -> np.ndarray:
+        return self.following & (self.rear_phase < RearPhase.MERGE)
+
+
+class ReactiveDoubleMerge(DoubleMerge):
+    """Double Merge v1 (see the module docstring): v0's plan plus both reaction delays."""
+
+    default_name = "double_merge_v1"
     config_class = ReactiveDoubleMergeConfig
+    expert_class = ReactiveDoubleMergeExpert
 
     def sample_plan(self, rng: np.random.Generator, case: str) -> ReactiveDoubleMergePlan:
         """A v0 plan (same draws in the same order, v1's ranges) with the reaction delays."""
@@ -93,77 +181,29 @@ class ReactiveDoubleMerge(DoubleMerge):
             front_reaction_steps=round(config.front_reaction_delay_s / period),
         )
 
-    def _reset_memory(self) -> None:
-        super()._reset_memory()
-        labels = np.full(self.num_cars, NO_ATTENTION, dtype=np.int16)
-        labels[GREEN], labels[BROWN] = BROWN, GREEN
-        self._labels = labels
-        self.following = False  # the rear car has seen the front car leave its lane
-        self._rear_seen: list[float] = []  # rear car's intended accelerations, one per step
-        self._rear_speeds: list[float] = []  # rear car's speed, one per step
-
-    def bumper_gap(self, world: World) -> float:
-        """Front minus rear x, minus a car length [m] (inf if either car was removed)."""
-        plan: ReactiveDoubleMergePlan = self.plan
-        if not (world.active[plan.front] and world.active[plan.rear]):
-            return float("inf")
-        return float(world.xy[plan.front, 0] - world.xy[plan.rear, 0] - self.config.car_length_m)
-
-    def lateral_departure(self, world: World) -> float:
-        """How far the front car has moved from its lane centre towards the rear car's [m]."""
-        plan: ReactiveDoubleMergePlan = self.plan
-        lane, target = plan.lane_y[plan.front], plan.lane_y[plan.rear]
-        return float((world.xy[plan.front, 1] - lane) * np.sign(target - lane))
-
-    def update(self, world: World) -> None:
-        plan: ReactiveDoubleMergePlan = self.plan
-        if not self.following and world.active[plan.front]:
-            self.following = self.lateral_departure(world) >= self.config.follow_trigger_m
-        super().update(world)
-        self._rear_seen.append(self._rear_intended_accel(world))
-        self._rear_speeds.append(float(world.speed[plan.rear]))
-
-    def _track(self, speed: float, target: float) -> float:
-        """Speed tracking acceleration with the scenario's gain and the car limits."""
-        limits = self.config.limits
-        return float(
-            speed_tracking_accel(
-                speed,
-                target,
-                self.config.speed_gain_per_s,
-                limits.max_accel_mps2,
-                limits.max_decel_mps2,
-            )
+    @classmethod
+    def manual_description(cls, config: ReactiveDoubleMergeConfig) -> str:
+        return (
+            f"The green car (`car_0`, lane {config.green_lane}) and the brown car (`car_1`, "
+            f"lane {config.brown_lane}) want each other's lane; case `major`: green starts "
+            f"behind, `minor`: ahead. The front car starts its lane change "
+            f"{span(config.front_change_start_s, 's')} into the episode. Once the rear car sees "
+            f"the front car {config.follow_trigger_m:g} m out of its lane centre it follows it "
+            f"with the Intelligent Driver Model (time headway {config.idm.time_headway_s:g} s, "
+            f"desired speed the cruise, reaction delay {config.rear_reaction_delay_s:g} s), so "
+            f"it brakes as much as the observed gap and speeds ask; it moves next to the centre "
+            f"line and merges {span(config.reaction_delay_s, 's')} after the front car has "
+            f"settled. The front car paces the rear car: it tracks the rear car's speed as seen "
+            f"{config.front_reaction_delay_s:g} s earlier plus {config.pace_margin_mps:g} m/s, so "
+            f"it answers the rear car's braking mostly after the observed window. The lane "
+            f"changes take {span(config.front_change_duration_s, 's')} (front) and "
+            f"{span(config.rear_change_duration_s, 's')} (rear)."
         )
 
-    def _rear_intended_accel(self, world: World) -> float:
-        """The rear car's acceleration for the scene now: cruise, and once it has seen the
-        front car leave its lane the IDM towards it (the lower of the two)."""
-        plan: ReactiveDoubleMergePlan = self.plan
-        speed = float(world.speed[plan.rear])
-        accel = self._track(speed, plan.cruise_speed_mps)
-        if self.following and world.active[plan.front]:
-            closing = speed - float(world.speed[plan.front])
-            gap = self.bumper_gap(world)
-            follow = idm_accel(speed, plan.cruise_speed_mps, gap, closing, self.config.idm)
-            accel = min(accel, float(follow))
-        return accel
-
-    def _accelerations(self, world: World) -> np.ndarray:
-        accel = super()._accelerations(world)
-        plan: ReactiveDoubleMergePlan = self.plan
-        speeds = self._rear_speeds
-        if speeds:  # asked before the first update: cruise, as in v0
-            seen = speeds[max(0, len(speeds) - 1 - plan.front_reaction_steps)]
-            target = seen + self.config.pace_margin_mps
-            accel[plan.front] = self._track(float(world.speed[plan.front]), target)
-        intended = self._rear_seen
-        if intended:
-            accel[plan.rear] = intended[max(0, len(intended) - 1 - plan.rear_reaction_steps)]
-        return accel
-
-    def attention_labels(self, world: World) -> np.ndarray:
-        return self._labels.copy()
-
-    def interaction(self, world: World) -> bool:
-        return self.following and self.rear_phase < RearPhase.MERGE
+    @classmethod
+    def manual_labels(cls, config: ReactiveDoubleMergeConfig) -> str:
+        return (
+            "the main cars attend to each other, each reacting to the other, the others to "
+            "nobody; `interaction`: from the rear car seeing the front car leave its lane until "
+            "it starts its own lane change"
+        )

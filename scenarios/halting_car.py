@@ -28,12 +28,13 @@ and the whole stop-and-go cycle (at most 4.8 + 4 + 2 + 6 = 16.8 s) fits in the e
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
 
-from carlo_lite import World
+from carlo_lite import BatchedWorld
 from scenarios.base import (
     BROWN,
     GREEN,
@@ -43,9 +44,11 @@ from scenarios.base import (
     ScenarioConfig,
     ScenarioPlan,
     sample_distractors,
+    span,
     uniform,
 )
-from scenarios.controllers import IDMParams, idm_accel, idm_equilibrium_gap
+from scenarios.controllers import IDMParams, idm_equilibrium_gap
+from scenarios.expert import Expert, python_min, scalar_idm_accel
 
 LEADER, FOLLOWER = BROWN, GREEN
 
@@ -98,13 +101,109 @@ class LeaderPhase(IntEnum):
     RESUME = 3  # accelerating back to the cruising speed
 
 
-class HaltingCar(Scenario):
-    """Halting Car scenario (see the module docstring)."""
+class HaltingCarExpert(Expert):
+    """Halting Car v0's expert over B scenes (see the module docstring): the leader's phase,
+    whether it has stopped and when are (B,) arrays."""
 
-    name = "halting_car"
+    plan_fields = (
+        "stops",
+        "cruise_speed_mps",
+        "follower_desired_speed_mps",
+        "time_headway_s",
+        "brake_start_s",
+        "brake_decel_mps2",
+        "stop_duration_s",
+        "resume_accel_mps2",
+    )
+
+    def __init__(self, scenario: HaltingCar, plans: Sequence[HaltingCarPlan]) -> None:
+        super().__init__(scenario, plans)
+        self.leader = self.offsets + LEADER  # (B,) flat car indices
+        self.follower = self.offsets + FOLLOWER
+        labels = np.full(self.num_cars, NO_ATTENTION, dtype=np.int16)
+        labels[FOLLOWER] = LEADER  # the follower attends to the leader at every step
+        self._labels = np.tile(labels, (self.num_scenes, 1))  # (B, N)
+
+    def _fresh_memory(self, count: int) -> dict[str, np.ndarray]:
+        return {
+            "leader_phase": np.full(count, LeaderPhase.CRUISE, dtype=np.int8),
+            "has_stopped": np.zeros(count, dtype=bool),
+            "stopped_at_s": np.full(count, np.nan),
+        }
+
+    def update(self, world: BatchedWorld) -> None:
+        time_s = world.time_s  # (B,)
+        now = time_s + 1e-9  # tolerate rounding of step_count * dt
+        speed = world.speed[:, LEADER]  # (B,)
+        phase = self.leader_phase
+        braking = (
+            (phase == LeaderPhase.CRUISE)
+            & self.stops
+            & ~self.has_stopped
+            & (now >= self.brake_start_s)
+        )
+        phase[braking] = LeaderPhase.BRAKE
+        stopping = (phase == LeaderPhase.BRAKE) & (speed <= 1e-6)
+        phase[stopping] = LeaderPhase.STOPPED
+        self.stopped_at_s[stopping] = time_s[stopping]
+        self.has_stopped |= stopping
+        resume_at = self.stopped_at_s + self.stop_duration_s
+        phase[(phase == LeaderPhase.STOPPED) & (now >= resume_at)] = LeaderPhase.RESUME
+        back = (phase == LeaderPhase.RESUME) & (speed >= self.cruise_speed_mps - 0.05)
+        phase[back] = LeaderPhase.CRUISE
+
+    def _accelerations(self, world: BatchedWorld) -> np.ndarray:
+        accel = super()._accelerations(world)  # speed tracking for everybody
+        phase = self.leader_phase
+        braking = phase == LeaderPhase.BRAKE
+        accel[self.leader[braking]] = -self.brake_decel_mps2[braking]
+        accel[self.leader[phase == LeaderPhase.STOPPED]] = 0.0
+        resuming = phase == LeaderPhase.RESUME
+        if resuming.any():
+            missing = self.cruise_speed_mps - world.speed[:, LEADER]
+            limit = python_min(self.resume_accel_mps2, missing / self.scenario.control_period_s)
+            accel[self.leader[resuming]] = limit[resuming]
+        accel[self.follower] = self._follower_accel(world)
+        return accel
+
+    def _follower_accel(self, world: BatchedWorld) -> np.ndarray:
+        """(B,) the follower's acceleration: IDM towards the leader now."""
+        return self._idm_now(world)
+
+    def _idm_now(self, world: BatchedWorld) -> np.ndarray:
+        """(B,) IDM towards the leader, or the free road where the leader was removed."""
+        x, _, _, speed = self.flat(world)
+        follower_speed = speed[self.follower]
+        gap = x[self.leader] - x[self.follower] - self.config.car_length_m
+        closing = follower_speed - speed[self.leader]
+        present = world.active[:, LEADER]
+        if not present.all():
+            gap, closing = np.where(present, gap, np.inf), np.where(present, closing, 0.0)
+        return scalar_idm_accel(
+            follower_speed,
+            self.follower_desired_speed_mps,
+            gap,
+            closing,
+            self.time_headway_s,
+            self.config.idm,
+        )
+
+    def attention_labels(self, world: BatchedWorld) -> np.ndarray:
+        return self._labels.copy()
+
+    def interaction(self, world: BatchedWorld) -> np.ndarray:
+        phase = self.leader_phase
+        return (phase == LeaderPhase.BRAKE) | (phase == LeaderPhase.STOPPED)
+
+
+class HaltingCar(Scenario):
+    """Halting Car v0 (see the module docstring): plans and the manual's text."""
+
+    default_name = "halting_car_v0"
     case_names = ("stop", "go")
     default_major_case = "stop"
     config_class = HaltingCarConfig
+    expert_class = HaltingCarExpert
 
     def sample_plan(self, rng: np.random.Generator, case: str) -> HaltingCarPlan:
         config: HaltingCarConfig = self.config
@@ -141,63 +240,44 @@ class HaltingCar(Scenario):
             **timings,
         )
 
-    def _reset_memory(self) -> None:
-        self.leader_phase = LeaderPhase.CRUISE
-        self.has_stopped = False
-        self.stopped_at_s: float | None = None
-        self._idm = dataclasses.replace(self.config.idm, time_headway_s=self.plan.time_headway_s)
-        labels = np.full(self.num_cars, NO_ATTENTION, dtype=np.int16)
-        labels[FOLLOWER] = LEADER
-        self._labels = labels
+    @classmethod
+    def manual_description(cls, config: HaltingCarConfig) -> str:
+        return (
+            f"The brown leader (`car_1`) and the green follower (`car_0`, behind it) share "
+            f"an inner lane ({lanes_in_words(config)}). Case `stop`: the leader brakes "
+            f"{span(config.brake_start_s, 's')} into the episode with a deceleration of "
+            f"{span(config.brake_decel_mps2, 'm/s^2')} to a full stop, stands "
+            f"{span(config.stop_duration_s, 's')}, then accelerates at "
+            f"{span(config.resume_accel_mps2, 'm/s^2')} back to its cruising speed. Case `go`: "
+            f"it keeps its speed. The follower's expert is the Intelligent Driver Model towards "
+            f"the leader (time headway {span(config.time_headway_s, 's')}, desired speed "
+            f"{span(config.follower_speed_ratio)} x the leader's cruise)."
+        )
 
-    def update(self, world: World) -> None:
-        plan: HaltingCarPlan = self.plan
-        now = world.time_s + 1e-9  # tolerate rounding of step_count * dt
-        speed = float(world.speed[LEADER])
-        phase = self.leader_phase
-        if (
-            phase == LeaderPhase.CRUISE
-            and plan.stops
-            and not self.has_stopped
-            and now >= plan.brake_start_s
-        ):
-            phase = LeaderPhase.BRAKE
-        if phase == LeaderPhase.BRAKE and speed <= 1e-6:
-            phase, self.stopped_at_s, self.has_stopped = LeaderPhase.STOPPED, world.time_s, True
-        if phase == LeaderPhase.STOPPED and now >= self.stopped_at_s + plan.stop_duration_s:
-            phase = LeaderPhase.RESUME
-        if phase == LeaderPhase.RESUME and speed >= plan.cruise_speed_mps - 0.05:
-            phase = LeaderPhase.CRUISE
-        self.leader_phase = phase
+    @classmethod
+    def manual_starting_state(cls, config: HaltingCarConfig) -> str:
+        return (
+            f"Leader at x in [{span(config.leader_start_x_m).replace(' to ', ', ')}] m at its "
+            f"cruising speed ({span(config.cruise_speed_mps, 'm/s')}); follower at the same "
+            f"speed, {span(config.initial_gap_ratio)} times the IDM equilibrium gap behind it; "
+            "both on the lane centre, heading 0."
+        )
 
-    def _accelerations(self, world: World) -> np.ndarray:
-        accel = super()._accelerations(world)  # speed tracking for everybody
-        plan: HaltingCarPlan = self.plan
-        phase = self.leader_phase
-        if phase == LeaderPhase.BRAKE:
-            accel[LEADER] = -plan.brake_decel_mps2
-        elif phase == LeaderPhase.STOPPED:
-            accel[LEADER] = 0.0
-        elif phase == LeaderPhase.RESUME:
-            missing = plan.cruise_speed_mps - float(world.speed[LEADER])
-            accel[LEADER] = min(plan.resume_accel_mps2, missing / self.control_period_s)
-        accel[FOLLOWER] = self._follower_accel(world)
-        return accel
+    @classmethod
+    def manual_labels(cls, config: HaltingCarConfig) -> str:
+        return (
+            "the follower attends to the leader, the others to nobody; `interaction`: the "
+            "leader is braking or standing still"
+        )
 
-    def _follower_accel(self, world: World) -> float:
-        """IDM towards the leader (free road if the leader was removed)."""
-        speed = world.speed[FOLLOWER]
-        if world.active[LEADER]:
-            length = self.config.car_length_m
-            gap = world.xy[LEADER, 0] - world.xy[FOLLOWER, 0] - length
-            closing = speed - world.speed[LEADER]
-        else:
-            gap, closing = np.inf, 0.0
-        desired = self.plan.follower_desired_speed_mps
-        return float(idm_accel(speed, desired, gap, closing, self._idm))
+    @classmethod
+    def manual_split_note(cls, config: HaltingCarConfig) -> str:
+        return "so that the leader's stop falls in the predicted part"
 
-    def attention_labels(self, world: World) -> np.ndarray:
-        return self._labels.copy()
 
-    def interaction(self, world: World) -> bool:
-        return self.leader_phase in (LeaderPhase.BRAKE, LeaderPhase.STOPPED)
+def lanes_in_words(config: HaltingCarConfig) -> str:
+    """The main cars' lane choice in words: "1 or 2, at random"."""
+    lanes = [str(lane) for lane in config.main_lanes]
+    if len(lanes) == 1:
+        return f"lane {lanes[0]}"
+    return f"{', '.join(lanes[:-1])} or {lanes[-1]}, at random"

@@ -25,13 +25,21 @@ last, so a v1 plan differs from the v0 plan of the same seed only in the changed
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from carlo_lite import World
-from scenarios.base import Range, uniform
-from scenarios.halting_car import HaltingCar, HaltingCarConfig, HaltingCarPlan
+from carlo_lite import BatchedWorld
+from scenarios.base import Range, span, uniform
+from scenarios.expert import History
+from scenarios.halting_car import (
+    HaltingCar,
+    HaltingCarConfig,
+    HaltingCarExpert,
+    HaltingCarPlan,
+    lanes_in_words,
+)
 
 
 @dataclass(frozen=True)
@@ -52,30 +60,71 @@ class ReactiveHaltingCarPlan(HaltingCarPlan):
     reaction_steps: int = 0  # control steps between what the follower sees and what it does
 
 
-class ReactiveHaltingCar(HaltingCar):
-    """Halting Car v1 (see the module docstring)."""
+class ReactiveHaltingCarExpert(HaltingCarExpert):
+    """Halting Car v1's expert over B scenes: v0's, with the follower's IDM accelerations
+    delayed (a `History` read `reaction_steps` back)."""
 
-    name = "halting_car_v1"
+    plan_fields = (*HaltingCarExpert.plan_fields, "reaction_steps")
+
+    def __init__(self, scenario: ReactiveHaltingCar, plans: Sequence[ReactiveHaltingCarPlan]):
+        super().__init__(scenario, plans)
+        self._seen = History(self.num_scenes, self.config.num_steps)  # IDM accelerations
+
+    def restart(self, scenes, plans, world: BatchedWorld) -> None:
+        super().restart(scenes, plans, world)
+        self._seen.restart(scenes)
+
+    def update(self, world: BatchedWorld) -> None:
+        super().update(world)
+        self._seen.append(self._idm_now(world))
+
+    def _follower_accel(self, world: BatchedWorld) -> np.ndarray:
+        """The IDM acceleration of `reaction_steps` control steps ago (before the episode's
+        first update: the one now, as if the follower had been driving steadily)."""
+        delayed = self._seen.delayed(self.reaction_steps)
+        empty = self._seen.empty()
+        return np.where(empty, self._idm_now(world), delayed) if empty.any() else delayed
+
+
+class ReactiveHaltingCar(HaltingCar):
+    """Halting Car v1 (see the module docstring): v0's plan plus the reaction delay."""
+
+    default_name = "halting_car_v1"
     config_class = ReactiveHaltingCarConfig
+    expert_class = ReactiveHaltingCarExpert
 
     def sample_plan(self, rng: np.random.Generator, case: str) -> ReactiveHaltingCarPlan:
         plan = super().sample_plan(rng, case)
         delay = uniform(rng, self.config.reaction_delay_s)
-        steps = max(1, round(delay / self.control_period_s))
         values = {field.name: getattr(plan, field.name) for field in dataclasses.fields(plan)}
-        return ReactiveHaltingCarPlan(**values, reaction_steps=steps)
+        return ReactiveHaltingCarPlan(**values, reaction_steps=self.delay_steps(delay))
 
-    def _reset_memory(self) -> None:
-        super()._reset_memory()
-        self._seen: list[float] = []  # IDM accelerations computed so far, one per control step
+    def delay_steps(self, delay_s: float) -> int:
+        """A reaction delay [s] in control steps (at least one)."""
+        return max(1, round(delay_s / self.control_period_s))
 
-    def update(self, world: World) -> None:
-        super().update(world)
-        self._seen.append(super()._follower_accel(world))
+    @classmethod
+    def manual_description(cls, config: ReactiveHaltingCarConfig) -> str:
+        period = config.recorded_dt
+        steps = sorted({max(1, round(delay / period)) for delay in config.reaction_delay_s})
+        observed_s = config.num_observed * period
+        return (
+            f"The brown leader (`car_1`) and the green follower (`car_0`, behind it) share "
+            f"an inner lane ({lanes_in_words(config)}). The leader cruises at "
+            f"{span(config.cruise_speed_mps, 'm/s')}; in case `stop` it starts braking "
+            f"{span(config.brake_start_s, 's')} into the episode, inside the {observed_s:g} s "
+            f"that a predictor observes ({config.num_observed} steps), at "
+            f"{span(config.brake_decel_mps2, 'm/s^2')} to a full stop, stands "
+            f"{span(config.stop_duration_s, 's')} and accelerates back at "
+            f"{span(config.resume_accel_mps2, 'm/s^2')} to its cruising speed; case `go`: it "
+            f"keeps its speed. The follower applies the Intelligent Driver Model towards the "
+            f"leader with a reaction delay of {' or '.join(f'{s * period:g}' for s in steps)} s "
+            f"(its action at step t is the IDM action for the scene at step t - "
+            f"{' or '.join(str(s) for s in steps)}), a time headway of "
+            f"{span(config.time_headway_s, 's')} and a desired speed "
+            f"{span(config.follower_speed_ratio)} x the leader's cruise."
+        )
 
-    def _follower_accel(self, world: World) -> float:
-        """The IDM acceleration of `reaction_steps` control steps ago (before the episode: the
-        first one, as if the follower had been driving steadily)."""
-        if not self._seen:  # asked before the first update
-            return super()._follower_accel(world)
-        return self._seen[max(0, len(self._seen) - 1 - self.plan.reaction_steps)]
+    @classmethod
+    def manual_split_note(cls, config: ReactiveHaltingCarConfig) -> str:
+        return "so that the leader's braking onset is observed and the follower's reaction is not"

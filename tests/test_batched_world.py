@@ -1,7 +1,9 @@
-"""carlo_lite.BatchedWorld against its truth, one `World` per scene: the same states bit for bit
-under the same controls (clipping, stopping, turning), the same collisions and off-road cars per
-scene (pairs only within a scene), and numpy's vectorised functions giving each element the same
-result whatever the array's length or stride (what makes the batched step exact)."""
+"""carlo_lite.BatchedWorld: every scene evolves as it would alone (one `World` per scene: the
+same states bit for bit under the same controls, clipping, stopping, turning; the same
+collisions and off-road cars, pairs only within a scene), removed cars and restarts per scene,
+and numpy's vectorised functions giving each element the same result whatever the array's
+length or stride (what makes a scene independent of its batch). Kinematics and collisions
+against closed form and a separating-axis check: test_kinematics.py, test_collision.py."""
 
 from __future__ import annotations
 
@@ -59,7 +61,7 @@ def test_every_scene_steps_and_collides_like_its_own_world():
         for world, scene_controls in zip(worlds, controls):
             world.step(scene_controls)
     assert seen_hit and seen_off and seen_clean  # the checks met every kind of scene
-    assert batched.time_s == worlds[0].time_s and batched.step_count == 60
+    assert (batched.step_count == 60).all() and (batched.time_s == worlds[0].time_s).all()
 
 
 def test_pairs_never_cross_scenes():
@@ -79,7 +81,7 @@ def test_scene_is_an_independent_world_of_the_same_state():
     batched.step(controls)
     world = batched.scene(2)
     np.testing.assert_array_equal(world.state, batched.state[2])
-    assert world.time_s == batched.time_s
+    assert world.time_s == batched.time_s[2]
     world.step(controls[2])
     batched.step(controls)
     np.testing.assert_array_equal(world.state, batched.state[2])
@@ -101,6 +103,56 @@ def test_views_are_read_only_and_bad_controls_are_named():
         batched.step(controls)
     with pytest.raises(ValueError, match="state"):
         BatchedWorld(ROAD, np.zeros((6, 4)))
+
+
+def test_removed_cars_freeze_ignore_their_controls_and_never_collide():
+    state = np.zeros((3, 2, 4))
+    state[:, 0] = (20.0, 5.25, 0.0, 10.0)
+    state[:, 1] = (21.0, 5.25, 0.0, 10.0)  # overlapping car 0 in every scene
+    batched = BatchedWorld(ROAD, state, roles=("a", "b"))
+    hit, _ = batched.incidents()
+    assert hit.all()
+    removed = np.zeros((3, 2), dtype=bool)
+    removed[1, 1] = True
+    batched.deactivate(removed)
+    np.testing.assert_array_equal(batched.active, ~removed)
+    hit, _ = batched.incidents()
+    np.testing.assert_array_equal(hit, [[True, True], [False, False], [True, True]])
+    controls = np.zeros((3, 2, 2))
+    controls[:, :, 1] = 1.0
+    controls[1, 1] = np.nan  # a removed car's control is ignored ...
+    batched.step(controls)
+    assert batched.state[1, 1, 0] == 21.0 and batched.state[0, 1, 0] > 21.0
+    controls[1, 0] = np.nan  # ... an active one's is not, and the error names it
+    with pytest.raises(ValueError, match=r"scene 1, car 0 \(a\) has a non-finite control"):
+        batched.step(controls)
+    with pytest.raises(ValueError, match="mask"):
+        batched.deactivate(np.zeros(2, dtype=bool))
+
+
+def test_restart_starts_chosen_scenes_over_and_leaves_the_others():
+    rng = np.random.default_rng(11)
+    state = scenes(rng, 4)
+    batched = BatchedWorld(ROAD, state, length_m=LENGTHS, width_m=WIDTHS)
+    controls = rng.uniform(-0.3, 0.3, (4, len(LENGTHS), 2))
+    for _ in range(5):
+        batched.step(controls)
+    removed = np.zeros((4, len(LENGTHS)), dtype=bool)
+    removed[[1, 2], 0] = True
+    batched.deactivate(removed)
+    before = batched.state
+    fresh = scenes(np.random.default_rng(12), 2)
+    batched.restart([2, 0], fresh)
+    np.testing.assert_array_equal(batched.step_count, [0, 5, 0, 5])
+    np.testing.assert_array_equal(batched.active[:, 0], [True, False, True, True])
+    alone = BatchedWorld(ROAD, fresh, length_m=LENGTHS, width_m=WIDTHS)  # the restarted two
+    np.testing.assert_array_equal(batched.state[[2, 0]], alone.state)
+    np.testing.assert_array_equal(batched.state[[1, 3]], before[[1, 3]])
+    batched.step(controls)
+    alone.step(controls[[2, 0]])
+    np.testing.assert_array_equal(batched.state[[2, 0]], alone.state)
+    with pytest.raises(ValueError, match=r"state must be a finite \(1, 6, 4\) array"):
+        batched.restart([1], fresh)
 
 
 @pytest.mark.parametrize(

@@ -30,33 +30,26 @@ with warnings.catch_warnings():
     )
 
 from scenarios import (
-    DoubleMerge,
+    ENV_MODULES,
+    VERSIONS,
     DoubleMergeConfig,
-    FixedBrakeHaltingCar,
-    HaltingCar,
-    LateBrakeHaltingCar,
-    ReactiveDoubleMerge,
-    ReactiveHaltingCar,
     double_merge_v0,
-    double_merge_v1,
     halting_car_v0,
-    halting_car_v1,
-    halting_car_v2,
-    halting_car_v3,
     rollout,
 )
 
-SCENARIO_OF = {  # every environment module and the scenario class it serves
-    double_merge_v0: DoubleMerge,
-    double_merge_v1: ReactiveDoubleMerge,
-    halting_car_v0: HaltingCar,
-    halting_car_v1: ReactiveHaltingCar,
-    halting_car_v2: LateBrakeHaltingCar,
-    halting_car_v3: FixedBrakeHaltingCar,
-}
-MODULES = list(SCENARIO_OF)
-CASES = [(module, case) for module in MODULES for case in SCENARIO_OF[module].case_names]
+MODULES = [ENV_MODULES[name] for name in VERSIONS]  # every registered version's module
+CASES = [
+    (module, case)
+    for module in MODULES
+    for case in module.raw_env.version.scenario_class.case_names
+]
 IDS = [f"{module.__name__.split('.')[-1]}-{case}" for module, case in CASES]
+
+
+def scenario_of(module):
+    """The scenario (plain class, the version's settings) that `module`'s environment serves."""
+    return module.raw_env.version.make()
 
 
 def seeded(factory, seed: int = 0):
@@ -180,7 +173,7 @@ def test_every_observation_is_inside_its_space(module, case, policy) -> None:
 
 @pytest.mark.parametrize(("module", "case"), CASES, ids=IDS)
 def test_expert_steps_reproduce_rollout_exactly(module, case) -> None:
-    scenario = SCENARIO_OF[module]()
+    scenario = scenario_of(module)
     env = module.parallel_env()
     for seed in (0, 17):
         episode = rollout(scenario, seed, case)
@@ -207,7 +200,7 @@ def test_seedless_reset_reports_a_seed_that_rollout_replays(module) -> None:
     env.reset()
     seed, case = env.episode_seed, env.case
     assert seed != 4
-    episode = rollout(SCENARIO_OF[module](), seed, case)
+    episode = rollout(scenario_of(module), seed, case)
     np.testing.assert_array_equal(env.world.state.astype(np.float32), episode.states[0])
 
 
@@ -432,11 +425,11 @@ def test_the_action_dict_must_name_exactly_the_live_agents() -> None:
 
 
 def test_metadata_is_never_written_from_an_instance() -> None:
-    class_metadata = dict(double_merge_v0.DoubleMergeEnv.metadata)
+    class_metadata = dict(double_merge_v0.raw_env.metadata)
     env = double_merge_v0.parallel_env(config=DoubleMergeConfig(record_every=1, num_steps=40))
     assert env.metadata["render_fps"] == pytest.approx(10.0)
-    assert env.metadata is not double_merge_v0.DoubleMergeEnv.metadata
-    assert double_merge_v0.DoubleMergeEnv.metadata == class_metadata
+    assert env.metadata is not double_merge_v0.raw_env.metadata
+    assert double_merge_v0.raw_env.metadata == class_metadata
     assert env.max_cycles == 40
     assert double_merge_v0.parallel_env().metadata["render_fps"] == pytest.approx(5.0)
     assert halting_car_v0.parallel_env().metadata["render_fps"] == pytest.approx(10 / 3)
@@ -467,7 +460,7 @@ def test_spaces_and_rendering(module) -> None:
 
 
 TABLE_ROW = re.compile(
-    r"^\s*\| (\d+)( \+ 5k)?\s+\|[^|]+\|\s*(-?pi|-?\d+)\s*\|\s*(-?pi|-?\d+)\s*\|$"
+    r"^\s*\| (\d+)( \+ 5k)?\s+\|[^|]+\|\s*(-?pi|-?[\d.]+)\s*\|\s*(-?pi|-?[\d.]+)\s*\|$"
 )
 
 
@@ -480,13 +473,14 @@ def documented_bound(text: str) -> float:
 def test_the_manual_in_the_class_docstring_matches_the_spaces(module) -> None:
     env = module.parallel_env()
     manual = type(env).__doc__
+    prose = " ".join(manual.split())  # the manual wraps its lines
     space, action_space = env.observation_space("car_0"), env.action_space("car_0")
     low, high = action_space.low.tolist(), action_space.high.tolist()
-    assert f"`Box({low}, {high}, (2,), float32)` per agent" in manual
-    assert f"`Box(float32, ({space.shape[0]},))` per agent" in manual
+    assert f"`Box({low}, {high}, (2,), float32)` per agent" in prose
+    assert f"`Box(float32, ({space.shape[0]},))` per agent" in prose
     others = env.scenario.num_cars - 1
-    assert f"with k = 0 ... {others - 1} indexing the other {others} cars" in manual
-    held = re.search(r"one env step = (\d) simulation\s+steps of ([\d.]+) s \(([\d.]+) s\)", manual)
+    assert f"with k = 0 ... {others - 1} indexing the other {others} cars" in prose
+    held = re.search(r"one env step = (\d) simulation steps of ([\d.]+) s \(([\d.]+) s\)", prose)
     assert int(held[1]) == env.config.record_every
     assert float(held[1]) * float(held[2]) == pytest.approx(float(held[3]))
     assert float(held[3]) == pytest.approx(env.config.recorded_dt)

@@ -19,8 +19,7 @@ from pipeline import episode_runner, generation
 from pipeline.generation import GenerateConfig, default_output, generate_dataset, plan
 from predictor.format import OPTIONAL_FIELDS
 from predictor.format_reader import read_dataset, read_meta
-from scenarios import SCENARIOS
-from scenarios.batched_rollout import rollout_batch
+from scenarios import VERSIONS, rollout_batch
 from scenarios.rollout import rollout
 
 generate_tool = load_tool("generate.py")
@@ -37,7 +36,7 @@ def counts(config: GenerateConfig) -> dict[tuple[str, str], int]:
 
 # ---- config ------------------------------------------------------------------------------------
 def test_default_counts_follow_the_paper():
-    config = GenerateConfig.for_scenario("double_merge", minor_ratio=0.3)
+    config = GenerateConfig.for_scenario("double_merge_v0", minor_ratio=0.3)
     assert (config.major_case, config.minor_case) == ("major", "minor")
     assert counts(config) == {
         ("train", "major"): 40,
@@ -47,7 +46,7 @@ def test_default_counts_follow_the_paper():
         ("test", "major"): 50,
         ("test", "minor"): 50,
     }
-    assert GenerateConfig.for_scenario("double_merge") == config  # 0.3 is the default ratio
+    assert GenerateConfig.for_scenario("double_merge_v0") == config  # 0.3 is the default ratio
 
 
 @pytest.mark.parametrize(
@@ -61,7 +60,7 @@ def test_default_counts_follow_the_paper():
     ],
 )
 def test_paper_settings_counts(kwargs, minor_pool, major_pool):
-    config = GenerateConfig.for_scenario("halting_car", **kwargs)
+    config = GenerateConfig.for_scenario("halting_car_v0", **kwargs)
     assert (config.major_case, config.minor_case) == ("stop", "go")
     tally = counts(config)
     assert tally[("train", "go")] + tally[("val", "go")] == minor_pool
@@ -79,21 +78,21 @@ def test_default_scenario_is_double_merge_v1_and_v0_stays_available():
         "minor",
     )
     assert generate_tool.config_from_args(generate_tool.parse_args([])) == config
-    args = generate_tool.parse_args(["--scenario", "double_merge"])
-    assert generate_tool.config_from_args(args).scenario == "double_merge"
+    args = generate_tool.parse_args(["--scenario", "double_merge_v0"])
+    assert generate_tool.config_from_args(args).scenario == "double_merge_v0"
 
 
 def test_go_as_major_case_and_cli_builds_the_same_config():
-    config = GenerateConfig.for_scenario("halting_car", major_case="go", num_major=7, seed=2)
+    config = GenerateConfig.for_scenario("halting_car_v0", major_case="go", num_major=7, seed=2)
     assert (config.major_case, config.minor_case, config.num_minor) == ("go", "stop", 2)
     args = generate_tool.parse_args(
-        ["--scenario", "halting_car", "--major-case", "go", "--num-major", "7", "--seed", "2"]
+        ["--scenario", "halting_car_v0", "--major-case", "go", "--num-major", "7", "--seed", "2"]
     )
     assert generate_tool.config_from_args(args) == config
-    assert default_output(config) == Path("data/halting_car_go-major_7+2_seed2.h5")
+    assert default_output(config) == Path("data/halting_car_v0_go-major_7+2_seed2.h5")
 
 
-VALID = dict(scenario="halting_car", major_case="stop", minor_case="go")
+VALID = dict(scenario="halting_car_v0", major_case="stop", minor_case="go")
 
 
 @pytest.mark.parametrize(
@@ -142,13 +141,13 @@ def test_config_accepts_the_edges_of_its_ranges():
 )
 def test_for_scenario_rejects_bad_values(kwargs, text):
     with pytest.raises(ValueError, match=text):
-        GenerateConfig.for_scenario("halting_car", **kwargs)
+        GenerateConfig.for_scenario("halting_car_v0", **kwargs)
 
 
 # ---- generate_dataset --------------------------------------------------------------------------
 def test_round_trip_file_contents(tmp_path):
     out = tmp_path / "sub" / "hc.h5"  # missing directories are created
-    config = GenerateConfig.for_scenario("halting_car", **SMALL)
+    config = GenerateConfig.for_scenario("halting_car_v0", **SMALL)
     result = generate_dataset(config, out, progress=False)
     assert result.path == out and result.rejected == 0 and result.num_agents == 22
     assert result.counts == {
@@ -159,14 +158,14 @@ def test_round_trip_file_contents(tmp_path):
     assert result.summary().startswith(f"wrote {out}: train 4 stop + 2 go; val 1 stop + 0 go;")
     meta, splits = read_dataset(out)
     assert meta == result.meta
-    assert meta.scenario == "halting_car" and meta.major_case == "stop"
+    assert meta.scenario == "halting_car_v0" and meta.major_case == "stop"
     assert meta.config["generator"] == dataclasses.asdict(config)
     assert splits["train"].n == 4 + 2 and splits["val"].n == 1 + 0 and splits["test"].n == 6
     case_names = list(meta.case_names)
     test_cases = [case_names[i] for i in splits["test"].case]
     assert test_cases == ["stop"] * 3 + ["go"] * 3
     # the stored arrays are exactly what the scenario's rollout gives for the stored seeds
-    scenario = SCENARIOS["halting_car"]()
+    scenario = VERSIONS["halting_car_v0"].make()
     index = 4
     episode = rollout(scenario, int(splits["test"].seed[index]), test_cases[index])
     np.testing.assert_array_equal(splits["test"].states[index], episode.states.astype(np.float32))
@@ -180,7 +179,7 @@ def test_round_trip_file_contents(tmp_path):
 
 
 def test_same_config_same_data_for_any_worker_count(tmp_path):
-    config = GenerateConfig.for_scenario("double_merge", num_major=6, num_minor=3, num_test=4)
+    config = GenerateConfig.for_scenario("double_merge_v0", num_major=6, num_minor=3, num_test=4)
     generate_dataset(config, tmp_path / "a.h5", progress=False)
     generate_dataset(config, tmp_path / "b.h5", progress=False)
     generate_dataset(config, tmp_path / "c.h5", workers=2, progress=False)
@@ -215,9 +214,9 @@ def test_batched_generation_writes_the_same_bytes_as_one_by_one(tmp_path, name):
 def test_master_seeds_whose_trajectory_seeds_overflow_int64_are_refused():
     top, stride = generation.MAX_SEED, generation.SEED_STRIDE  # seeds stride * seed + k, k < stride
     assert top * stride + stride <= 2**63 - 1 < (top + 1) * stride + stride
-    GenerateConfig.for_scenario("halting_car", seed=generation.MAX_SEED)
+    GenerateConfig.for_scenario("halting_car_v0", seed=generation.MAX_SEED)
     with pytest.raises(ValueError, match="seed must be at most"):
-        GenerateConfig.for_scenario("halting_car", seed=generation.MAX_SEED + 1)
+        GenerateConfig.for_scenario("halting_car_v0", seed=generation.MAX_SEED + 1)
 
 
 def test_refuses_to_overwrite_before_any_work(tmp_path, monkeypatch):
@@ -228,7 +227,7 @@ def test_refuses_to_overwrite_before_any_work(tmp_path, monkeypatch):
         raise AssertionError("generation started although the output exists")
 
     monkeypatch.setattr(generation, "generate_episodes", no_work)
-    config = GenerateConfig.for_scenario("halting_car", **SMALL)
+    config = GenerateConfig.for_scenario("halting_car_v0", **SMALL)
     with pytest.raises(FileExistsError, match="overwrite"):
         generate_dataset(config, out, progress=False)
     with pytest.raises(IsADirectoryError):
@@ -238,19 +237,15 @@ def test_refuses_to_overwrite_before_any_work(tmp_path, monkeypatch):
     assert out.read_bytes() == b"precious"
     monkeypatch.undo()
     result = generate_dataset(config, out, overwrite=True, progress=False)
-    assert result.path == out and read_meta(out).scenario == "halting_car"
+    assert result.path == out and read_meta(out).scenario == "halting_car_v0"
 
 
 def patch_episodes(monkeypatch, change) -> None:
-    """Make the generator's episodes `change(episode)`, on both paths (one by one, batched)."""
-
-    def one(scenario, seed, case):
-        return change(rollout(scenario, seed, case))
+    """Make the generator's episodes `change(episode)`, whatever the batch size."""
 
     def batch(scenario, seeds, cases):
         return [change(episode) for episode in rollout_batch(scenario, seeds, cases)]
 
-    monkeypatch.setattr(episode_runner, "rollout", one)
     monkeypatch.setattr(episode_runner, "rollout_batch", batch)
 
 
@@ -262,7 +257,7 @@ def test_unsafe_episodes_are_replaced_deterministically(monkeypatch, batch_scene
         return dataclasses.replace(episode, collided=episode.seed in bad_seeds)
 
     patch_episodes(monkeypatch, flag)
-    config = GenerateConfig.for_scenario("halting_car", num_major=4, num_minor=2, num_test=1)
+    config = GenerateConfig.for_scenario("halting_car_v0", num_major=4, num_minor=2, num_test=1)
     slots, episodes, rejected = generation.generate_episodes(config, batch_scenes=batch_scenes)
     assert rejected == 2
     seeds = [slot.seed for slot in slots]
@@ -275,7 +270,7 @@ def test_unsafe_episodes_are_replaced_deterministically(monkeypatch, batch_scene
 @pytest.mark.parametrize("batch_scenes", [1, 64])
 def test_always_unsafe_expert_gives_up_with_a_clear_error(monkeypatch, batch_scenes):
     patch_episodes(monkeypatch, lambda episode: dataclasses.replace(episode, off_road=True))
-    config = GenerateConfig.for_scenario("halting_car", num_major=2, num_minor=0, num_test=0)
+    config = GenerateConfig.for_scenario("halting_car_v0", num_major=2, num_minor=0, num_test=0)
     with pytest.raises(generation.UnsafeExpertError, match="still unsafe after 5 rounds"):
         generation.generate_episodes(config, batch_scenes=batch_scenes)
 
@@ -295,23 +290,25 @@ def test_is_safe_rejects_nan_and_off_road():
 
 # ---- interrupts inside the library -------------------------------------------------------------
 def _rollout_that_signals(monkeypatch, on_call: int) -> list[int]:
-    """Patch rollout so that call `on_call` sends SIGINT to this process before rolling out."""
+    """Patch the rollout so that episode `on_call` (rolled out one by one, batch_scenes=1)
+    sends SIGINT to this process before rolling out."""
     calls: list[int] = []
 
-    def signalling_rollout(scenario, seed, case):
-        calls.append(seed)
+    def signalling_rollout(scenario, seeds, cases):
+        assert len(seeds) == 1
+        calls.extend(seeds)
         if len(calls) == on_call:
             os.kill(os.getpid(), signal.SIGINT)  # handled during the episode below
-        return rollout(scenario, seed, case)
+        return rollout_batch(scenario, seeds, cases)
 
-    monkeypatch.setattr(episode_runner, "rollout", signalling_rollout)
+    monkeypatch.setattr(episode_runner, "rollout_batch", signalling_rollout)
     return calls
 
 
 def test_ctrl_c_reaches_the_caller_after_the_episode_and_writes_nothing(tmp_path, monkeypatch):
     calls = _rollout_that_signals(monkeypatch, on_call=3)
     before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-    config = GenerateConfig.for_scenario("halting_car", **SMALL)
+    config = GenerateConfig.for_scenario("halting_car_v0", **SMALL)
     with pytest.raises(KeyboardInterrupt):
         generate_dataset(config, tmp_path / "x.h5", progress=False, batch_scenes=1)
     assert len(calls) == 3  # delivered between episodes, not lost inside one
@@ -328,7 +325,7 @@ def test_a_callers_own_handler_gets_the_signal_between_episodes(tmp_path, monkey
 
     previous = signal.signal(signal.SIGINT, note)
     try:
-        config = GenerateConfig.for_scenario("halting_car", **SMALL)
+        config = GenerateConfig.for_scenario("halting_car_v0", **SMALL)
         result = generate_dataset(config, tmp_path / "x.h5", progress=False, batch_scenes=1)
         assert signal.getsignal(signal.SIGINT) is note
     finally:
@@ -347,7 +344,7 @@ def test_ctrl_c_reaches_the_caller_after_the_batch_and_writes_nothing(tmp_path, 
         return rollout_batch(scenario, seeds, cases)
 
     monkeypatch.setattr(episode_runner, "rollout_batch", signalling_batch)
-    config = GenerateConfig.for_scenario("halting_car", **SMALL)  # 13 slots: 4 + 4 + 4 + 1
+    config = GenerateConfig.for_scenario("halting_car_v0", **SMALL)  # 13 slots: 4 + 4 + 4 + 1
     with pytest.raises(KeyboardInterrupt):
         generate_dataset(config, tmp_path / "x.h5", progress=False, batch_scenes=4)
     assert batches == [4, 4]  # delivered after the second batch, not lost inside it
@@ -357,7 +354,7 @@ def test_ctrl_c_reaches_the_caller_after_the_batch_and_writes_nothing(tmp_path, 
 def test_ctrl_c_in_a_sharded_run_leaves_nothing(tmp_path, monkeypatch):
     calls = _rollout_that_signals(monkeypatch, on_call=6)  # after two shards were written
     before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-    config = GenerateConfig.for_scenario("halting_car", **SMALL)
+    config = GenerateConfig.for_scenario("halting_car_v0", **SMALL)
     with pytest.raises(KeyboardInterrupt):
         generate_dataset(config, tmp_path / "out", progress=False, shard_size=2, batch_scenes=1)
     assert len(calls) == 6
@@ -375,9 +372,9 @@ def test_a_stopping_pool_worker_ends_its_chunk_after_the_current_batch(monkeypat
         return rollout_batch(scenario, seeds, cases)
 
     monkeypatch.setattr(episode_runner, "_STOP", stop)
-    monkeypatch.setattr(episode_runner, "_SCENARIO", SCENARIOS["halting_car"]())
+    monkeypatch.setattr(episode_runner, "_SCENARIO", VERSIONS["halting_car_v0"].make())
     monkeypatch.setattr(episode_runner, "rollout_batch", batch_then_stop)
-    slots = plan(GenerateConfig.for_scenario("halting_car", **SMALL))[:12]
+    slots = plan(GenerateConfig.for_scenario("halting_car_v0", **SMALL))[:12]
     assert episode_runner._run_chunk((slots, 4)) == []  # no result is used once stopping
     assert batches == [4]  # the batch under way finished; the other two never started
     assert episode_runner._run_chunk((slots, 4)) == [] and batches == [4]  # queued: at once
@@ -392,9 +389,9 @@ def test_ctrl_c_stops_a_pool_of_workers_and_reaches_the_caller():
             if self.checks == 2:
                 raise KeyboardInterrupt
 
-    slots = plan(GenerateConfig.for_scenario("halting_car", num_major=40, num_test=0))
+    slots = plan(GenerateConfig.for_scenario("halting_car_v0", num_major=40, num_test=0))
     signals = SignalOnSecondCheck()
     progress = SimpleNamespace(update=lambda n: None)
     with pytest.raises(KeyboardInterrupt):  # the pool is closed and joined, not left hanging
-        episode_runner.run_slots(slots, "halting_car", 2, progress, signals, batch_scenes=4)
+        episode_runner.run_slots(slots, "halting_car_v0", 2, progress, signals, batch_scenes=4)
     assert signals.checks == 2

@@ -34,7 +34,7 @@ def test_cli_smoke_summary_and_refuses_overwrite(tmp_path):
     out = tmp_path / "dm.h5"
     args = [
         "--scenario",
-        "double_merge",
+        "double_merge_v0",
         "--num-major",
         "3",
         "--minor-ratio",
@@ -64,22 +64,31 @@ def test_cli_smoke_summary_and_refuses_overwrite(tmp_path):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--scenario", "roundabout"], "invalid choice"),
-        (["--scenario", "halting_car", "--minor-ratio", "-0.1"], "--minor-ratio"),
-        (["--scenario", "halting_car", "--minor-ratio", "1e6"], "--minor-ratio"),
-        (["--scenario", "halting_car", "--num-major", "2.5"], "invalid int"),
-        (["--scenario", "halting_car", "--num-test", "ten"], "invalid int"),
-        (["--scenario", "halting_car", "--num-major", "0"], "--num-major must be at least 1"),
-        (["--scenario", "halting_car", "--num-test", "-1"], "--num-test must be at least 0"),
-        (["--scenario", "halting_car", "--val-fraction", "1.0"], "--val-fraction"),
-        (["--scenario", "halting_car", "--val-fraction", "-0.2"], "--val-fraction"),
-        (["--scenario", "halting_car", "--major-case", "major"], "--major-case"),
-        (["--scenario", "halting_car", "--seed", "-1"], "seed must be at least 0"),
-        (["--scenario", "halting_car", "--workers", "0"], "--workers"),
-        (["--scenario", "halting_car", "--batch-scenes", "0"], "--batch-scenes must be at least 1"),
-        (["--scenario", "halting_car", "--minor-ratio", "0.3", "--num-minor", "3"], "either"),
-        (["--scenario", "halting_car", "--address", "head:6379"], "--address needs --backend ray"),
-        (["--scenario", "halting_car", "--seed", str(2**62)], "seed must be at most"),
+        (
+            ["--scenario", "roundabout"],
+            "unknown scenario 'roundabout'; choose from double_merge_v0",
+        ),
+        (["--scenario", "halting_car_v0", "--minor-ratio", "-0.1"], "--minor-ratio"),
+        (["--scenario", "halting_car_v0", "--minor-ratio", "1e6"], "--minor-ratio"),
+        (["--scenario", "halting_car_v0", "--num-major", "2.5"], "invalid int"),
+        (["--scenario", "halting_car_v0", "--num-test", "ten"], "invalid int"),
+        (["--scenario", "halting_car_v0", "--num-major", "0"], "--num-major must be at least 1"),
+        (["--scenario", "halting_car_v0", "--num-test", "-1"], "--num-test must be at least 0"),
+        (["--scenario", "halting_car_v0", "--val-fraction", "1.0"], "--val-fraction"),
+        (["--scenario", "halting_car_v0", "--val-fraction", "-0.2"], "--val-fraction"),
+        (["--scenario", "halting_car_v0", "--major-case", "major"], "--major-case"),
+        (["--scenario", "halting_car_v0", "--seed", "-1"], "seed must be at least 0"),
+        (["--scenario", "halting_car_v0", "--workers", "0"], "--workers"),
+        (
+            ["--scenario", "halting_car_v0", "--batch-scenes", "0"],
+            "--batch-scenes must be at least 1",
+        ),
+        (["--scenario", "halting_car_v0", "--minor-ratio", "0.3", "--num-minor", "3"], "either"),
+        (
+            ["--scenario", "halting_car_v0", "--address", "head:6379"],
+            "--address needs --backend ray",
+        ),
+        (["--scenario", "halting_car_v0", "--seed", str(2**62)], "seed must be at most"),
     ],
 )
 def test_bad_input_exits_2_with_one_line_and_no_file(tmp_path, argv, message):
@@ -97,7 +106,7 @@ def test_output_below_a_file_exits_2(tmp_path):
     blocker.write_text("not a directory")
     result = run_generate(
         "--scenario",
-        "halting_car",
+        "halting_car_v0",
         "--num-major",
         "2",
         "--num-test",
@@ -121,7 +130,7 @@ def test_unwritable_directory_exits_2(tmp_path, monkeypatch, capsys):
     out = tmp_path / "x.h5"
     with pytest.raises(SystemExit) as exit_:
         generate_tool.main(
-            ["--scenario", "halting_car", "--num-major", "1", "--num-test", "0"]
+            ["--scenario", "halting_car_v0", "--num-major", "1", "--num-test", "0"]
             + ["--out", str(out)]
         )
     assert exit_.value.code == 2
@@ -139,7 +148,7 @@ def start_and_wait_for_progress(
 ):
     """Start a long generation; return (process, stderr so far) once a trajectory is done."""
     process = subprocess.Popen(
-        [sys.executable, str(TOOL), "--scenario", "double_merge", "--num-major", "5000"]
+        [sys.executable, str(TOOL), "--scenario", "double_merge_v0", "--num-major", "5000"]
         + ["--workers", str(workers), "--out", str(out), *extra],
         cwd=REPO,
         stdout=subprocess.PIPE,

@@ -15,7 +15,7 @@ from conftest import load_tool, run_tool
 from pipeline import episode_runner
 from pipeline.generation import GenerateConfig, generate_dataset, plan
 from predictor.format_reader import read_dataset, read_split
-from scenarios.rollout import rollout
+from scenarios.rollout import rollout_batch
 
 generate_tool = load_tool("generate.py")
 
@@ -47,7 +47,7 @@ def assert_reads_as(index: Path, single: Path) -> None:
 def sharded_pair(tmp_path_factory) -> tuple[Path, Path, GenerateConfig]:
     """A Double Merge dataset as one file and as shards of 3 (which divide no split's count)."""
     root = tmp_path_factory.mktemp("sharded")
-    config = GenerateConfig.for_scenario("double_merge", **SHARDED)
+    config = GenerateConfig.for_scenario("double_merge_v0", **SHARDED)
     single = generate_dataset(config, root / "single.h5", progress=False)
     sharded = generate_dataset(config, root / "sharded", progress=False, shard_size=3)
     assert sharded.path == root / "sharded" / "index.h5"
@@ -103,7 +103,7 @@ def test_training_loader_gives_the_same_batches_from_the_index(sharded_pair):
 
 @pytest.mark.parametrize("shard_size", [1, 4, 1000])
 def test_shards_are_the_same_bytes_for_any_worker_count(tmp_path, shard_size):
-    config = GenerateConfig.for_scenario("halting_car", num_major=4, num_minor=1, num_test=2)
+    config = GenerateConfig.for_scenario("halting_car_v0", num_major=4, num_minor=1, num_test=2)
     one = generate_dataset(config, tmp_path / "one", progress=False, shard_size=shard_size)
     two = generate_dataset(
         config, tmp_path / "two", workers=2, progress=False, shard_size=shard_size
@@ -121,14 +121,14 @@ def test_sharded_unsafe_episodes_get_the_single_files_replacement_seeds(tmp_path
     plan_length = 8  # train 3 + 2, val 1 + 0, test 1 + 1
     bad_seeds = {2, 5, plan_length}  # slot 2's first replacement is unsafe too
 
-    def flaky_rollout(scenario, seed, case):
-        episode = rollout(scenario, seed, case)
-        return dataclasses.replace(episode, collided=seed in bad_seeds)
+    def flaky_rollout(scenario, seeds, cases):
+        episodes = rollout_batch(scenario, seeds, cases)
+        return [dataclasses.replace(e, collided=e.seed in bad_seeds) for e in episodes]
 
-    monkeypatch.setattr(episode_runner, "rollout", flaky_rollout)
-    config = GenerateConfig.for_scenario("halting_car", num_major=4, num_minor=2, num_test=1)
+    monkeypatch.setattr(episode_runner, "rollout_batch", flaky_rollout)
+    config = GenerateConfig.for_scenario("halting_car_v0", num_major=4, num_minor=2, num_test=1)
     assert len(plan(config)) == plan_length
-    # one by one (batch_scenes=1): the patched per-episode rollout is what runs
+    # one by one (batch_scenes=1)
     single = generate_dataset(config, tmp_path / "single.h5", progress=False, batch_scenes=1)
     assert single.rejected == 3
     assert read_dataset(single.path)[1]["train"].seed.tolist() == [0, 1, 10, 3, 4]
@@ -146,7 +146,7 @@ def test_sharded_unsafe_episodes_get_the_single_files_replacement_seeds(tmp_path
 
 def test_cli_sharded_smoke_refusals_and_tools_on_the_index(tmp_path, sharded_pair):
     out = tmp_path / "hc"
-    args = ["--scenario", "halting_car", "--num-major", "3", "--num-test", "2"]
+    args = ["--scenario", "halting_car_v0", "--num-major", "3", "--num-test", "2"]
     args += ["--shard-size", "2", "--out", str(out)]
     result = run_generate(*args)
     assert result.returncode == 0, result.stderr
@@ -186,7 +186,7 @@ def test_cli_sharded_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, mes
         argv += ["--out", str(tmp_path / "out")]
     with pytest.raises(SystemExit) as exit_:
         generate_tool.main(
-            ["--scenario", "halting_car", "--num-major", "1", "--shard-size", "2"] + argv
+            ["--scenario", "halting_car_v0", "--num-major", "1", "--shard-size", "2"] + argv
         )
     assert exit_.value.code == 2
     err = capsys.readouterr().err

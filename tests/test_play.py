@@ -69,18 +69,18 @@ def test_play_records_a_gif_and_refuses_to_overwrite_it(tmp_path: Path) -> None:
     import imageio.v3 as iio
 
     video = tmp_path / "stop.gif"
-    done = run_play("--scenario", "halting_car", "--case", "stop", "--record", str(video))
+    done = run_play("--scenario", "halting_car_v0", "--case", "stop", "--record", str(video))
     assert done.returncode == 0, done.stderr
     assert f"wrote {video} (61 frames)" in done.stdout
     frames = iio.imread(video)
     assert frames.shape == (61, 200, 800, 3)
     recorded = video.read_bytes()
-    again = run_play("--scenario", "halting_car", "--case", "go", "--record", str(video))
+    again = run_play("--scenario", "halting_car_v0", "--case", "go", "--record", str(video))
     assert_one_error_line(again, f"output {video} already exists; pass --overwrite")
     assert video.read_bytes() == recorded
     assert sorted(path.name for path in tmp_path.iterdir()) == ["stop.gif"]  # no temp files
     replaced = run_play(
-        "--scenario", "halting_car", "--case", "go", "--record", str(video), "--overwrite"
+        "--scenario", "halting_car_v0", "--case", "go", "--record", str(video), "--overwrite"
     )
     assert replaced.returncode == 0, replaced.stderr
     assert video.read_bytes() != recorded and iio.imread(video).shape == (61, 200, 800, 3)
@@ -90,15 +90,15 @@ def test_play_records_a_gif_and_refuses_to_overwrite_it(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     "args",
     [
-        ["--scenario", "double_merge", "--case", "stop"],
+        ["--scenario", "double_merge_v0", "--case", "stop"],
         ["--scenario", "nowhere"],
-        ["--scenario", "double_merge", "--control", "car_0"],
-        ["--scenario", "double_merge", "--render", "human", "--control", "car_99"],
-        ["--scenario", "double_merge", "--record", "movie.avi"],
-        ["--scenario", "double_merge", "--seed", "-1"],
-        ["--scenario", "double_merge", "--fps", "inf"],
-        ["--scenario", "double_merge", "--fps", "1e-300"],
-        ["--scenario", "double_merge", "--record", "x.gif", "--fps", "1000"],
+        ["--scenario", "double_merge_v0", "--control", "car_0"],
+        ["--scenario", "double_merge_v0", "--render", "human", "--control", "car_99"],
+        ["--scenario", "double_merge_v0", "--record", "movie.avi"],
+        ["--scenario", "double_merge_v0", "--seed", "-1"],
+        ["--scenario", "double_merge_v0", "--fps", "inf"],
+        ["--scenario", "double_merge_v0", "--fps", "1e-300"],
+        ["--scenario", "double_merge_v0", "--record", "x.gif", "--fps", "1000"],
     ],
 )
 def test_play_bad_arguments_give_one_line_and_exit_2(args: list[str]) -> None:
@@ -117,7 +117,7 @@ HEADLESS = {
 def test_render_human_without_a_display_stops_at_once(variables: dict[str, str]) -> None:
     pytest.importorskip("pygame")
     env = {k: v for k, v in tool_env().items() if k not in NO_DISPLAY_VARIABLES}
-    done = run_play("--scenario", "double_merge", "--render", "human", env={**env, **variables})
+    done = run_play("--scenario", "double_merge_v0", "--render", "human", env={**env, **variables})
     assert_one_error_line(done, "--render human needs a display: ")
     assert "--record FILE.gif" in done.stderr and done.stdout == ""  # no episode was played
 
@@ -147,7 +147,7 @@ def test_render_human_without_pygame_says_how_to_install_it(play, monkeypatch, c
         importlib.util, "find_spec", lambda name, *a: None if name == "pygame" else find_spec(name)
     )
     with pytest.raises(SystemExit) as done:
-        play.main(["--scenario", "double_merge", "--render", "human"])
+        play.main(["--scenario", "double_merge_v0", "--render", "human"])
     assert done.value.code == 2
     assert capsys.readouterr().err == (
         "error: --render human needs pygame: pip install 'smooth-attention[render]'\n"
@@ -162,10 +162,10 @@ def test_play_human_window_with_keyboard_control_runs(play, monkeypatch, capsys)
     monkeypatch.setenv("SDL_AUDIODRIVER", "dummy")
     monkeypatch.setattr(play, "display_problem", lambda environ, platform: None)
     play.main(
-        ["--scenario", "double_merge", "--case", "minor", "--render", "human",
+        ["--scenario", "double_merge_v0", "--case", "minor", "--render", "human",
          "--control", "car_1", "--fps", "1000"]
     )  # fmt: skip
-    assert capsys.readouterr().out.startswith("double_merge minor seed 0: 60 steps")
+    assert capsys.readouterr().out.startswith("double_merge_v0 minor seed 0: 60 steps")
 
 
 @pytest.mark.parametrize("name", ["x.gif", "x.mp4"])
@@ -176,7 +176,7 @@ def test_record_into_a_directory_that_refuses_writes_stops_at_once(tmp_path, nam
     denied.mkdir()
     video = denied / name
     done = subprocess.run(
-        [sys.executable, "-c", DENY_WRITES, str(denied), str(PLAY), "--scenario", "halting_car",
+        [sys.executable, "-c", DENY_WRITES, str(denied), str(PLAY), "--scenario", "halting_car_v0",
          "--record", str(video)],
         capture_output=True, text=True, timeout=120, env=tool_env(),
     )  # fmt: skip
@@ -192,7 +192,7 @@ def test_a_write_failing_after_the_episode_leaves_no_file(play, tmp_path, monkey
 
     monkeypatch.setattr(Path, "write_bytes", refuse)
     with pytest.raises(SystemExit) as done:
-        play.main(["--scenario", "halting_car", "--record", str(video)])
+        play.main(["--scenario", "halting_car_v0", "--record", str(video)])
     assert done.value.code == 2
     err = capsys.readouterr().err
     assert err.splitlines()[-1] == f"error: cannot write {video}: Permission denied"
@@ -209,7 +209,7 @@ def test_a_file_that_appears_during_the_episode_is_not_overwritten(play, tmp_pat
 
     monkeypatch.setattr(play, "play", play_while_someone_writes_the_output)
     with pytest.raises(SystemExit) as done:
-        play.main(["--scenario", "halting_car", "--record", str(video)])
+        play.main(["--scenario", "halting_car_v0", "--record", str(video)])
     assert done.value.code == 2
     assert video.read_text() == "someone else's" and os.listdir(tmp_path) == ["x.gif"]
 
@@ -219,7 +219,7 @@ def test_play_records_an_mp4(tmp_path: Path) -> None:
     import imageio.v3 as iio
 
     video = tmp_path / "minor.mp4"
-    done = run_play("--scenario", "double_merge", "--case", "minor", "--record", str(video))
+    done = run_play("--scenario", "double_merge_v0", "--case", "minor", "--record", str(video))
     assert done.returncode == 0, done.stderr
     assert "WARNING" not in done.stderr  # frames padded to H.264 macro blocks, not resized
     frames = iio.imread(video)

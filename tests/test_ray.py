@@ -54,14 +54,14 @@ def test_local_workers_run_at_the_callers_priority(session):
 
 
 def test_generation_through_ray_writes_the_same_bytes(session, tmp_path):
-    config = GenerateConfig.for_scenario("halting_car", num_major=6, num_minor=3, num_test=4)
+    config = GenerateConfig.for_scenario("halting_car_v0", num_major=6, num_minor=3, num_test=4)
     generate_dataset(config, tmp_path / "local.h5", progress=False, batch_scenes=1)  # one by one
     generate_dataset(config, tmp_path / "ray.h5", workers=2, progress=False, backend="ray")
     assert (tmp_path / "ray.h5").read_bytes() == (tmp_path / "local.h5").read_bytes()
 
 
 def test_sharded_generation_through_ray_writes_the_same_bytes(session, tmp_path):
-    config = GenerateConfig.for_scenario("halting_car", num_major=6, num_minor=3, num_test=4)
+    config = GenerateConfig.for_scenario("halting_car_v0", num_major=6, num_minor=3, num_test=4)
     local = generate_dataset(config, tmp_path / "local", progress=False, shard_size=4)
     remote = generate_dataset(
         config, tmp_path / "ray", workers=2, progress=False, backend="ray", shard_size=4
@@ -251,7 +251,16 @@ def test_missing_ray_is_one_line_exit_2(monkeypatch, tmp_path, capsys):
         with ray_session():
             pass
     out = tmp_path / "x.h5"
-    argv = ["--scenario", "halting_car", "--num-major", "2", "--backend", "ray", "--out", str(out)]
+    argv = [
+        "--scenario",
+        "halting_car_v0",
+        "--num-major",
+        "2",
+        "--backend",
+        "ray",
+        "--out",
+        str(out),
+    ]
     with pytest.raises(SystemExit) as exit_info:
         load_tool("generate.py").main(argv)
     assert exit_info.value.code == 2

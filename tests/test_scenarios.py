@@ -1,7 +1,7 @@
-"""Scenarios without PettingZoo: registry, configs, recorded episodes, expert safety over 200
-seeds per case, the v0 scenarios' behaviour, and the causal dependence between the main cars
-(with a test that distractors influence nobody). The reactive scenarios' behaviour (v1 to v3) is
-in test_scenarios_reactive.py."""
+"""Scenarios without PettingZoo: configs, recorded episodes, expert safety over 200 seeds per
+case, the v0 scenarios' behaviour, and the causal dependence between the main cars (with a test
+that distractors influence nobody). The registry of versions is in test_registry.py, the
+reactive scenarios' behaviour (v1 to v3) in test_scenarios_reactive.py."""
 
 from __future__ import annotations
 
@@ -13,50 +13,30 @@ from scenario_episodes import CASES, episodes, plan_of, scenario
 
 from carlo_lite import World
 from scenarios import (
-    ENV_MODULES,
     ROLE_NAMES,
-    SCENARIOS,
+    VERSIONS,
     DoubleMerge,
     DoubleMergeConfig,
     HaltingCar,
     HaltingCarConfig,
     ReactiveDoubleMergeConfig,
     ReactiveHaltingCarConfig,
-    env_module,
     rollout,
 )
 from scenarios.base import BROWN, GREEN
 
 
-# --- registry and configuration ---------------------------------------------------------------
-def test_registry_and_class_attributes() -> None:
-    assert set(SCENARIOS) == {
-        "double_merge",
-        "double_merge_v1",
-        "halting_car",
-        "halting_car_v1",
-        "halting_car_v2",
-        "halting_car_v3",
-    }
+# --- configuration ------------------------------------------------------------------------------
+def test_class_attributes() -> None:
     assert DoubleMerge.case_names == ("major", "minor")
     assert HaltingCar.case_names == ("stop", "go")
-    for name, cls in SCENARIOS.items():
-        assert cls.name == name
-        assert cls.default_major_case in cls.case_names
-        assert cls.role_names == ROLE_NAMES == ("main_green", "main_brown", "distractor")
+    for version in VERSIONS.values():
+        code = version.scenario_class
+        assert code.default_major_case in code.case_names
+        assert code.role_names == ROLE_NAMES == ("main_green", "main_brown", "distractor")
+        assert version.make().name == version.name
     assert DoubleMerge.config_class is DoubleMergeConfig
     assert HaltingCar.config_class is HaltingCarConfig
-
-
-def test_every_scenario_has_its_environment_module() -> None:
-    assert set(ENV_MODULES) == set(SCENARIOS)
-    for name, cls in SCENARIOS.items():
-        env = env_module(name).parallel_env()
-        assert isinstance(env.scenario, cls)
-        assert env.metadata["name"] == ENV_MODULES[name].split(".")[-1]
-        assert env.metadata["name"].startswith(name.removesuffix("_v1"))
-    with pytest.raises(ValueError, match="unknown scenario 'nowhere'"):
-        env_module("nowhere")
 
 
 @pytest.mark.parametrize(
@@ -132,7 +112,7 @@ def test_recorded_actions_reproduce_the_recorded_states(name: str, case: str) ->
 
 @pytest.mark.parametrize(("name", "case"), CASES)
 def test_rollout_is_deterministic_over_whole_episodes(name: str, case: str) -> None:
-    first, second = rollout(scenario(name), 5, case), rollout(SCENARIOS[name](), 5, case)
+    first, second = rollout(scenario(name), 5, case), rollout(VERSIONS[name].make(), 5, case)
     for field in ("states", "actions", "valid", "attention", "interaction"):
         np.testing.assert_array_equal(getattr(first, field), getattr(second, field))
     given = rollout(scenario(name), 5, case, rng=np.random.default_rng(5))
@@ -145,14 +125,14 @@ def test_rollout_leaves_global_random_state_alone() -> None:
     np.random.seed(123)
     expected = np.random.random()
     np.random.seed(123)
-    rollout(scenario("double_merge"), 0, "major")
-    rollout(scenario("halting_car"), 0, "stop")
+    rollout(scenario("double_merge_v0"), 0, "major")
+    rollout(scenario("halting_car_v0"), 0, "stop")
     assert np.random.random() == expected
 
 
-@pytest.mark.parametrize("name", list(SCENARIOS))
+@pytest.mark.parametrize("name", list(VERSIONS))
 def test_same_seed_gives_the_same_scene_in_every_case(name: str) -> None:
-    cases = SCENARIOS[name].case_names
+    cases = VERSIONS[name].scenario_class.case_names
     plans = [plan_of(name, 9, case) for case in cases]
     np.testing.assert_array_equal(plans[0].initial_state[2:], plans[1].initial_state[2:])
     xs = sorted(plans[0].initial_state[:2, 0])
@@ -197,7 +177,7 @@ def test_attention_labels(name: str, case: str) -> None:
 @pytest.mark.parametrize("case", DoubleMerge.case_names)
 def test_double_merge_main_cars_swap_lanes_and_the_rear_one_waits(case: str) -> None:
     config = DoubleMergeConfig()
-    for run in episodes("double_merge", case):
+    for run in episodes("double_merge_v0", case):
         start, end = run.states[0], run.states[-1]
         rear = GREEN if start[GREEN, 0] < start[BROWN, 0] else BROWN
         front = 1 - rear
@@ -222,14 +202,14 @@ def test_double_merge_main_cars_swap_lanes_and_the_rear_one_waits(case: str) -> 
 
 
 def test_double_merge_wait_end_varies_from_episode_to_episode() -> None:
-    ends = [np.nonzero(run.interaction)[0][-1] for run in episodes("double_merge", "major")]
+    ends = [np.nonzero(run.interaction)[0][-1] for run in episodes("double_merge_v0", "major")]
     assert np.std(ends) * 0.2 > 0.4  # seconds
 
 
 # --- Halting Car behaviour ---------------------------------------------------------------------
 def test_halting_car_stop_case_stops_waits_and_resumes() -> None:
     config = HaltingCarConfig()
-    for run in episodes("halting_car", "stop"):
+    for run in episodes("halting_car_v0", "stop"):
         leader_speed = run.states[:, BROWN, 3]
         interaction = np.nonzero(run.interaction)[0]
         assert interaction[0] >= config.num_observed  # braking starts in the predicted part
@@ -247,7 +227,7 @@ def test_halting_car_stop_case_stops_waits_and_resumes() -> None:
 
 
 def test_halting_car_go_case_keeps_speed_and_has_no_interaction() -> None:
-    for run in episodes("halting_car", "go"):
+    for run in episodes("halting_car_v0", "go"):
         assert not run.interaction.any()
         np.testing.assert_allclose(run.states[:, BROWN, 3], run.states[0, BROWN, 3], atol=1e-5)
         assert run.states[:, GREEN, 3].min() > 0.6 * run.states[0, BROWN, 3]
@@ -256,7 +236,7 @@ def test_halting_car_go_case_keeps_speed_and_has_no_interaction() -> None:
 # --- causal structure ---------------------------------------------------------------------------
 def test_double_merge_rear_car_reacts_to_the_front_car_timing() -> None:
     sc = DoubleMerge()
-    plan, other = plan_of("double_merge", 1, "major"), plan_of("double_merge", 2, "major")
+    plan, other = plan_of("double_merge_v0", 1, "major"), plan_of("double_merge_v0", 2, "major")
     swapped = dataclasses.replace(
         plan,
         front_change_start_s=other.front_change_start_s,
@@ -288,7 +268,7 @@ def test_double_merge_rear_car_keeps_waiting_if_the_front_car_never_moves() -> N
 
 @pytest.mark.parametrize(("name", "case"), CASES)
 def test_distractors_influence_nobody(name: str, case: str) -> None:
-    sc = SCENARIOS[name]()
+    sc = VERSIONS[name].make()
     base = rollout(sc, 8, case)
     forced = np.full_like(base.actions, np.nan)
     forced[:, 5] = (0.05, -2.0)  # one distractor swerves and brakes (and may leave the road)
@@ -300,7 +280,7 @@ def test_distractors_influence_nobody(name: str, case: str) -> None:
 
 def test_halting_car_follower_reacts_to_the_leader_timing() -> None:
     sc = HaltingCar()
-    plan, other = plan_of("halting_car", 1, "stop"), plan_of("halting_car", 7, "stop")
+    plan, other = plan_of("halting_car_v0", 1, "stop"), plan_of("halting_car_v0", 7, "stop")
     swapped = dataclasses.replace(
         plan, brake_start_s=other.brake_start_s, brake_decel_mps2=other.brake_decel_mps2
     )

@@ -11,11 +11,8 @@ import pytest
 from scenario_episodes import episodes, plan_of
 
 from scenarios import (
-    SCENARIOS,
+    VERSIONS,
     Episode,
-    FixedBrakeHaltingCar,
-    FixedBrakeHaltingCarConfig,
-    LateBrakeHaltingCar,
     ReactiveDoubleMerge,
     ReactiveDoubleMergeConfig,
     ReactiveHaltingCar,
@@ -91,7 +88,8 @@ def test_double_merge_v1_each_main_car_reacts_to_the_other_one_delay_later() -> 
         assert (
             braked.actions[later, reacting, 1].sum() < base.actions[later, reacting, 1].sum() - 0.2
         )
-    assert (sc.plan.front_reaction_steps, sc.plan.rear_reaction_steps) == (4, 2)
+    plan = sc.plan(5, "major")
+    assert (plan.front_reaction_steps, plan.rear_reaction_steps) == (4, 2)
 
 
 def test_double_merge_v1_rear_car_brakes_harder_for_a_smaller_gap() -> None:
@@ -144,7 +142,7 @@ def test_halting_car_v1_follower_reacts_to_the_leader_exactly_one_delay_later(se
     follower's actions stay identical up to step k + delay, then change."""
     sc = ReactiveHaltingCar()
     base = rollout(sc, seed, "go")
-    delay = sc.plan.reaction_steps
+    delay = sc.plan(seed, "go").reaction_steps
     k = 15
     forced = np.full_like(base.actions, np.nan)
     forced[k:, BROWN] = (0.0, -3.0)
@@ -163,7 +161,7 @@ def test_halting_car_v2_v3_only_the_leader_shows_the_stop_before_prediction(name
     """200 seeds: the leader's observed states differ between the cases (it brakes for 1-3
     observed steps), the follower's observed states and actions are the same in both (its own
     history cannot tell the case), and it then brakes, with the v1 safety margin."""
-    config = SCENARIOS[name].config_class()
+    config = VERSIONS[name].config()
     observed = config.num_observed
     for stop, go in zip(episodes(name, "stop"), episodes(name, "go")):
         leader_stop, leader_go = stop.states[:observed, BROWN, 3], go.states[:observed, BROWN, 3]
@@ -186,14 +184,14 @@ def test_halting_car_v2_plan_is_v1_plan_with_v2_ranges() -> None:
         assert v1.time_headway_s == v2.time_headway_s
         assert 2.4 <= v2.brake_start_s <= 3.0 and v2.reaction_steps == 3
         assert (v2.stop_duration_s, v2.resume_accel_mps2) == (1.5, 2.5)
-    assert isinstance(SCENARIOS["halting_car_v2"](), LateBrakeHaltingCar)
+    assert isinstance(VERSIONS["halting_car_v2"].make(), ReactiveHaltingCar)
 
 
 def test_halting_car_v3_last_observed_step_shows_the_same_braking_in_every_stop_scene() -> None:
     """200 seeds: over the last observed step the leader's speed falls by 4 m/s^2 x 0.3 s in
     every `stop` scene and not at all in every `go` scene (the case is one linear reading of
     its history), and its cruise lies in 9-11 m/s."""
-    config = FixedBrakeHaltingCarConfig()
+    config = VERSIONS["halting_car_v3"].config()
     last = config.num_observed - 1
     drop = config.brake_decel_mps2[0] * config.recorded_dt
     assert config.brake_decel_mps2 == (4.0, 4.0) and drop == pytest.approx(1.2)
@@ -217,4 +215,4 @@ def test_halting_car_v3_plan_is_v2_plan_with_v3_ranges() -> None:
             v3.resume_accel_mps2,
         )
         assert 9.0 <= v3.cruise_speed_mps <= 11.0 and v3.brake_decel_mps2 == 4.0
-    assert isinstance(SCENARIOS["halting_car_v3"](), FixedBrakeHaltingCar)
+    assert isinstance(VERSIONS["halting_car_v3"].make(), ReactiveHaltingCar)

@@ -32,8 +32,7 @@ from predictor.format_reader import read_meta, read_split
 from predictor.plots import plot_attention, plot_predictions, plot_samples, save_figure
 from predictor.presets import make_configs
 from predictor.training import train
-from scenarios import SCENARIOS
-from scenarios.rollout import advance
+from scenarios import env_module
 
 DEMO_SCENARIO = DEFAULT_SCENARIO  # the generator's default (Double Merge v1)
 DEMO_DATA = {"num_major": 20, "minor_ratio": 0.3, "num_test": 10}  # small: trains in minutes
@@ -57,12 +56,12 @@ DEMO_FILES = frozenset(
 
 def simulate_episode(out: Path, seed: int) -> Path:
     """Run one expert episode of the minor case and write its last frame and a GIF."""
-    scenario = SCENARIOS[DEMO_SCENARIO]()
-    world = scenario.reset(seed, "minor")
+    env = env_module(DEMO_SCENARIO).parallel_env()
+    env.reset(seed=seed, options={"case": "minor"})
     frames = []
-    for _ in range(scenario.config.num_steps):
-        scenario.update(world)
-        advance(world, scenario.expert_actions(world), scenario.config.record_every)
+    while env.agents:
+        env.step(env.unwrapped.expert_actions())
+        world = env.unwrapped.world
         center = (float(world.xy[:2, 0].mean()), world.road.width_m / 2)
         frames.append(render_rgb(world, 640, 160, center_xy=center))
     iio.imwrite(out / "episode.png", frames[len(frames) // 2])

@@ -1,7 +1,8 @@
 """Generate a major/minor trajectory dataset from a scenario's expert and write it to HDF5.
 
-Example: python tools/generate.py --scenario halting_car_v1 --minor-ratio 0.3
-(without --scenario: double_merge_v1; the v0 scenarios are `double_merge` and `halting_car`)
+Example: python tools/generate.py --scenario halting_car --minor-ratio 0.3
+(a family name means its latest version, here halting_car_v3, and a notice says so; name a
+version, e.g. --scenario halting_car_v0, to pin one; without --scenario: double_merge_v1)
 
 The training pool holds `--num-major` trajectories of the major case and round(R x num-major)
 of the minor case (or `--num-minor` exactly); `--val-fraction` of each case is split off for
@@ -21,6 +22,7 @@ from __future__ import annotations
 import argparse
 import re
 import signal
+import sys
 from pathlib import Path
 
 from pipeline.backends import BACKENDS
@@ -35,7 +37,7 @@ from pipeline.generation import (
     generate_dataset,
 )
 from pipeline.ray_backend import RayUnavailableError
-from scenarios import SCENARIOS
+from scenarios import choices_text, lookup
 
 # config and generate_dataset errors name these fields; the user typed the flags
 _FLAGS = re.compile(r"\b(num_major|num_minor|num_test|val_fraction|major_case|minor_ratio|seed)\b")
@@ -49,8 +51,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--scenario",
         default=DEFAULT_SCENARIO,
-        choices=sorted(SCENARIOS),
-        help=f"scenario to simulate (default {DEFAULT_SCENARIO})",
+        help=f"scenario version to simulate, family_vN; a family name means its latest "
+        f"version ({choices_text()}; default {DEFAULT_SCENARIO})",
     )
     parser.add_argument(
         "--minor-ratio",
@@ -132,10 +134,17 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def config_from_args(args: argparse.Namespace) -> GenerateConfig:
-    """The validated config; exits 2 with one line (naming the flag) on a bad value."""
+    """The validated config; exits 2 with one line (naming the flag) on a bad value. A family
+    name resolves to its latest version, with a notice on stderr."""
+    try:
+        version, notice = lookup(args.scenario)
+    except ValueError as error:
+        fail(f"--scenario: {error}")
+    if notice is not None:
+        print(f"notice: {notice}", file=sys.stderr)
     try:
         return GenerateConfig.for_scenario(
-            args.scenario,
+            version.name,
             major_case=args.major_case,
             num_major=args.num_major,
             minor_ratio=args.minor_ratio,

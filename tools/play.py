@@ -1,8 +1,8 @@
 """Play one episode of a scenario: watch it, record it, or drive one car yourself.
 
-    python tools/play.py --scenario double_merge --case minor --render human
-    python tools/play.py --scenario halting_car --case stop --record stop.gif
-    python tools/play.py --scenario double_merge --render human --control car_0
+    python tools/play.py --scenario double_merge_v1 --case minor --render human
+    python tools/play.py --scenario halting_car_v3 --case stop --record stop.gif
+    python tools/play.py --scenario double_merge_v1 --render human --control car_0
 
 The expert drives every car except the one given to --control, which you steer with the arrow
 keys (left/right: steer, up: accelerate, down: brake; Esc or closing the window ends the
@@ -29,7 +29,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.cli import ArgumentParser, check_output, fail, writing
-from scenarios import SCENARIOS, env_module
+from scenarios import VERSIONS, choices_text, env_module, lookup
 
 STEER_RAD = 0.12  # steering while an arrow key is held
 ACCEL_MPS2, BRAKE_MPS2 = 2.0, -5.0
@@ -41,7 +41,11 @@ MAX_VIDEO_FPS = 100.0  # a GIF stores each frame's delay in hundredths of a seco
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenario", required=True, choices=sorted(SCENARIOS))
+    parser.add_argument(
+        "--scenario",
+        required=True,
+        help=f"scenario version, family_vN; a family name means its latest ({choices_text()})",
+    )
     parser.add_argument("--case", help="case to play (default: the scenario's major case)")
     parser.add_argument("--seed", type=int, default=0, help="episode seed (default 0)")
     parser.add_argument("--render", choices=("human", "none"), default="none")
@@ -56,7 +60,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def check_args(args: argparse.Namespace) -> tuple[str, Path | None]:
     """Validate what argparse cannot (one-line error, exit 2); returns (case, video path)."""
-    scenario = SCENARIOS[args.scenario]
+    try:
+        version, notice = lookup(args.scenario)
+    except ValueError as error:
+        fail(f"--scenario: {error}")
+    if notice is not None:
+        print(f"notice: {notice}", file=sys.stderr)
+    args.scenario = version.name
+    scenario = version.scenario_class
     case = args.case or scenario.default_major_case
     if case not in scenario.case_names:
         fail(f"--case must be one of {', '.join(scenario.case_names)} for {args.scenario}")
@@ -67,7 +78,7 @@ def check_args(args: argparse.Namespace) -> tuple[str, Path | None]:
     if args.fps is not None and args.record is not None and args.fps > MAX_VIDEO_FPS:
         fail(f"--fps of a recording must be at most {MAX_VIDEO_FPS:g}, got {args.fps}")
     if args.control is not None:
-        agents = [f"car_{i}" for i in range(scenario.config_class().num_cars)]
+        agents = [f"car_{i}" for i in range(version.config().num_cars)]
         if args.control not in agents:
             fail(f"--control must name an agent car_0 ... {agents[-1]}, got {args.control!r}")
         if args.render != "human":
@@ -202,7 +213,7 @@ def save_video(video: Path, frames: list[np.ndarray], args: argparse.Namespace) 
     """Write the video, exiting 2 with one line (and no file) if it cannot be written; the
     output is checked again first, in case it appeared while the episode played."""
     check_output(video, args.overwrite)
-    fps = args.fps or 1.0 / SCENARIOS[args.scenario]().config.recorded_dt
+    fps = args.fps or 1.0 / VERSIONS[args.scenario].config().recorded_dt
     try:
         write_video(video, frames, fps)
     except OSError as error:

@@ -1,0 +1,142 @@
+"""B scenes of a scenario under the environments' rules, as arrays: the core that the PettingZoo
+environment (one scene, `scenarios.env`) and the vector environment (B scenes,
+`scenarios.vector_env`) both step, so the two agree scene by scene.
+
+Rules: every car's control (B, N, 2) is held for `record_every` simulation steps; a car that
+collides or leaves the road is removed at once (frozen, no longer colliding, presence 0 in the
+others' observations) and its agent terminates; an agent's observation (D,) is its own state and
+then, for every other car in agent order, a presence flag and that car's state relative to it;
+its reward is forward progress plus penalties for a collision and for leaving the road.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from carlo_lite import BatchedWorld
+from scenarios.base import Scenario, ScenarioConfig, ScenarioPlan
+
+EGO_FEATURES = 4  # x, y, heading, speed
+OTHER_FEATURES = 5  # presence, dx, dy, d_heading, d_speed
+
+
+def observation_bounds(config: ScenarioConfig, num_cars: int) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds (D,) float32 of one agent's observation; D = 4 + 5 (N - 1)."""
+    length, width = config.road_length_m, config.num_lanes * config.lane_width_m
+    top_speed = config.limits.max_speed_mps
+    ego_low = [0.0, 0.0, -np.pi, 0.0]
+    ego_high = [length, width, np.pi, top_speed]
+    other_low = [0.0, -length, -width, -np.pi, -top_speed]
+    other_high = [1.0, length, width, np.pi, top_speed]
+    low = np.array(ego_low + other_low * (num_cars - 1), dtype=np.float32)
+    high = np.array(ego_high + other_high * (num_cars - 1), dtype=np.float32)
+    return low, high
+
+
+def action_bounds(config: ScenarioConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds (2,) float32 of an action [steering rad, acceleration m/s^2]."""
+    limits = config.limits
+    low = np.array([-limits.max_steer_rad, -limits.max_decel_mps2], dtype=np.float32)
+    high = np.array([limits.max_steer_rad, limits.max_accel_mps2], dtype=np.float32)
+    return low, high
+
+
+def advance_scenes(
+    world: BatchedWorld, controls: np.ndarray, sub_steps: int, remove_crashed: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """Step `world` `sub_steps` times under held `controls` (B, N, 2), checking every step.
+
+    Returns per-car flags (B, N) bool: collided, off_road during these steps. With
+    `remove_crashed`, a car is deactivated (frozen, no longer colliding) as soon as it collides
+    or leaves the road.
+    """
+    collided = np.zeros((world.num_scenes, world.num_cars), dtype=bool)
+    off_road = np.zeros_like(collided)
+    for _ in range(sub_steps):
+        world.step(controls)
+        hit, left = world.incidents()
+        collided |= hit
+        off_road |= left
+        if remove_crashed and (hit.any() or left.any()):
+            world.deactivate(hit | left)
+    return collided, off_road
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    """Reward per agent and step: `speed` x v cos(heading) / max speed, plus `collision` if it
+    collided and `off_road` if it left the road during the step."""
+
+    speed: float = 0.1
+    collision: float = -1.0
+    off_road: float = -1.0
+
+
+class Scenes:
+    """B scenes of `scenario`, one per plan, driven by its expert in one batched world."""
+
+    def __init__(self, scenario: Scenario, plans: Sequence[ScenarioPlan]) -> None:
+        self.scenario = scenario
+        self.config = scenario.config
+        self.expert = scenario.expert(plans)
+        self.world = self.expert.make_world()
+        self.num_scenes, self.num_cars = len(plans), scenario.num_cars
+        self._low, self._high = observation_bounds(self.config, self.num_cars)
+        # every car's observation lists the others in agent order, skipping itself: (N, N-1)
+        everyone = np.arange(self.num_cars)
+        self._others = np.array([np.delete(everyone, index) for index in everyone])
+
+    def restart(self, scenes: np.ndarray, plans: Sequence[ScenarioPlan]) -> None:
+        """New episodes in `scenes` from `plans`; call `update` before reading them."""
+        self.expert.restart(scenes, plans, self.world)
+
+    def update(self) -> None:
+        """Let the expert see the current step (once per step, after `advance` or a start)."""
+        self.expert.update(self.world)
+
+    def advance(self, controls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Hold `controls` (B, N, 2) for one env step, removing cars that crash; returns
+        (collided, off_road) (B, N) bool."""
+        return advance_scenes(self.world, controls, self.config.record_every, remove_crashed=True)
+
+    def expert_actions(self) -> np.ndarray:
+        """The expert's controls (B, N, 2) float32 for the current step."""
+        return self.expert.expert_actions(self.world)
+
+    def observations(self) -> np.ndarray:
+        """(B, N, D) float32: each agent's ego state, then the others' relative states."""
+        world = self.world
+        state = world.state  # (B, N, 4)
+        others = self._others  # (N, N-1)
+        relative = state[:, others] - state[:, :, None, :]  # (B, N, N-1, 4)
+        relative[..., 2] = (relative[..., 2] + np.pi) % (2.0 * np.pi) - np.pi
+        present = world.active[:, others]  # (B, N, N-1)
+        relative *= present[..., None]
+        block = np.concatenate([present[..., None], relative], axis=3)  # (B, N, N-1, 5)
+        flat = np.concatenate([state, block.reshape(*state.shape[:2], -1)], axis=2)  # (B, N, D)
+        return np.clip(flat, self._low, self._high).astype(np.float32)
+
+    def rewards(
+        self, collided: np.ndarray, off_road: np.ndarray, weights: RewardWeights
+    ) -> np.ndarray:
+        """(B, N) float: the reward of every car for the step that flagged `collided` and
+        `off_road` (B, N)."""
+        world = self.world
+        forward = world.speed * np.cos(world.heading)  # (B, N) [m/s]
+        return (
+            weights.speed * forward / self.config.limits.max_speed_mps
+            + weights.collision * collided
+            + weights.off_road * off_road
+        )
+
+    def labels(self) -> tuple[np.ndarray, np.ndarray]:
+        """(attention (B, N) int16, interaction (B,) bool) at the current step."""
+        return self.expert.attention_labels(self.world), self.expert.interaction(self.world)
+
+    def state(self) -> np.ndarray:
+        """Global states (B, N, 4) float32 of every car, clipped to the observation bounds."""
+        low, high = self._low[:EGO_FEATURES], self._high[:EGO_FEATURES]
+        return np.clip(self.world.state, low, high).astype(np.float32)
