@@ -281,17 +281,21 @@ class BatchedWorld:
 
     def _candidate_scenes(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
         """Scenes with at least one pair i < j of active cars with overlapping bounding boxes
-        (B,) bool."""
-        overlap_x = (low[:, :, None, 0] <= high[:, None, :, 0]) & (
-            high[:, :, None, 0] >= low[:, None, :, 0]
-        )  # (B, N, N)
-        overlap_y = (low[:, :, None, 1] <= high[:, None, :, 1]) & (
-            high[:, :, None, 1] >= low[:, None, :, 1]
-        )
-        close = overlap_x & overlap_y & self._upper
+        (B,) bool. Computed with the scenes innermost, (N, N, B), for long vectorised loops."""
+        (low_x, low_y), (high_x, high_y) = (
+            np.ascontiguousarray(bound.transpose(2, 1, 0)) for bound in (low, high)
+        )  # (N, B) each
+        close = (
+            self._upper[:, :, None]  # pairs i < j
+            & (low_x[:, None] <= high_x[None])
+            & (high_x[:, None] >= low_x[None])
+            & (low_y[:, None] <= high_y[None])
+            & (high_y[:, None] >= low_y[None])
+        )  # (N, N, B)
         if not self._all_active:
-            close &= self._active[:, :, None] & self._active[:, None, :]
-        return close.any(axis=(1, 2))
+            active = self._active.T  # (N, B)
+            close &= active[:, None] & active[None]
+        return close.any(axis=(0, 1))
 
     def _collisions(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
         hit = np.zeros(self._shape, dtype=bool)

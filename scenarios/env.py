@@ -251,7 +251,7 @@ class ScenarioParallelEnv(ParallelEnv):
 
     # --- observations, infos ---------------------------------------------------------------------
     def _observations(self, agents: list[str]) -> dict[str, np.ndarray]:
-        rows = self.scenes.observations()[0]  # (N, D)
+        rows = self.scenes.observations()[:, 0]  # (N, D)
         return {agent: rows[self.agent_index[agent]] for agent in agents}
 
     def _infos(

@@ -14,6 +14,7 @@ files. Each version's environment class (`raw_env`, also under its own name, e.g
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
 from types import ModuleType
 from typing import Any
 
@@ -30,9 +31,10 @@ def class_name(version: ScenarioVersion) -> str:
 
 
 class EnvironmentModule(ModuleType):
-    """`scenarios.<version>`: `parallel_env`, `env`, `raw_env`, `vector_env` of one version."""
+    """`scenarios.<version>`: `parallel_env`, `env`, `raw_env`, `vector_env` of one version;
+    `family` is its family's versions (the manual's version history)."""
 
-    def __init__(self, version: ScenarioVersion) -> None:
+    def __init__(self, version: ScenarioVersion, family: Sequence[ScenarioVersion]) -> None:
         super().__init__(
             f"scenarios.{version.name}",
             f"{version.title} v{version.number} as a PettingZoo environment: `parallel_env()`, "
@@ -41,6 +43,7 @@ class EnvironmentModule(ModuleType):
             "(`scenarios.vector_env`).",
         )
         self.version = version
+        self.history = [earlier for earlier in family if earlier.number <= version.number]
 
     def __getattr__(self, name: str) -> Any:  # called only for names not built yet
         if name in (*EXPORTS, class_name(self.version)):
@@ -59,13 +62,12 @@ class EnvironmentModule(ModuleType):
         from scenarios.vector_env import ScenarioVectorEnv
 
         version = self.version
-        history = list(FAMILIES[version.family][: version.number + 1])
         name = class_name(version)
         env_class = type(
             name,
             (ScenarioParallelEnv,),
             {
-                "__doc__": environment_manual(version, history),
+                "__doc__": environment_manual(version, self.history),
                 "__module__": self.__name__,
                 "__qualname__": name,
                 "version": version,
@@ -107,7 +109,7 @@ def install(package: dict[str, Any]) -> dict[str, EnvironmentModule]:
     for name, version in VERSIONS.items():
         module = sys.modules.get(f"scenarios.{name}")
         if not isinstance(module, EnvironmentModule):
-            module = EnvironmentModule(version)
+            module = EnvironmentModule(version, FAMILIES[version.family])
             sys.modules[module.__name__] = module
         package[name] = modules[name] = module
     return modules

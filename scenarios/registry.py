@@ -92,13 +92,14 @@ def choices_text() -> str:
 
 
 def versions_markdown() -> str:
-    """The docs table of every version: name, code, what changed, why, settings."""
+    """The docs table of every version: name, code, what changed, why, and the settings its
+    entry changed (from the previous version's, or from the code's defaults for new code)."""
     rows = [
-        "| version | code | what changed | why | settings changed from the code's defaults |",
+        "| version | code | what changed | why | settings changed |",
         "|---|---|---|---|---|",
     ]
     for version in VERSIONS.values():
-        settings = ", ".join(f"`{key}={value}`" for key, value in version.settings.items())
+        settings = ", ".join(f"`{key}={value}`" for key, value in version.own_settings.items())
         rows.append(
             f"| `{version.name}` | `{version.scenario_class.__name__}` | {version.changes} | "
             f"{version.why} | {settings or '-'} |"

@@ -44,6 +44,27 @@ def action_bounds(config: ScenarioConfig) -> tuple[np.ndarray, np.ndarray]:
     return low, high
 
 
+def _off_diagonal(pairs: np.ndarray) -> np.ndarray:
+    """(N, N, ...) -> (N, N-1, ...): entry [i, j] for every j != i, in order (a copy)."""
+    num_cars = pairs.shape[0]
+    tail = pairs.shape[2:]
+    flat = pairs.reshape(num_cars * num_cars, *tail)[1:]
+    rows = flat.reshape(num_cars - 1, num_cars + 1, *tail)[:, :num_cars]
+    return rows.reshape(num_cars, num_cars - 1, *tail)
+
+
+def wrap_heading_difference(difference: np.ndarray) -> np.ndarray:
+    """A heading difference (headings in [-pi, pi)) wrapped to [-pi, pi): exactly
+    `(d + pi) % (2 pi) - pi`, without the slow float modulo. d + pi lies in (-pi, 3 pi), where
+    the modulo is d + pi, d + pi - 2 pi (exact, Sterbenz) or d + pi + 2 pi (as numpy rounds
+    it); a test holds the two equal bit for bit."""
+    shifted = difference + np.pi
+    np.subtract(shifted, 2.0 * np.pi, out=shifted, where=shifted >= 2.0 * np.pi)
+    np.add(shifted, 2.0 * np.pi, out=shifted, where=shifted < 0.0)  # none of the above
+    shifted -= np.pi
+    return shifted
+
+
 def advance_scenes(
     world: BatchedWorld, controls: np.ndarray, sub_steps: int, remove_crashed: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -107,17 +128,37 @@ class Scenes:
         return self.expert.expert_actions(self.world)
 
     def observations(self) -> np.ndarray:
-        """(B, N, D) float32: each agent's ego state, then the others' relative states."""
+        """(N, B, D) float32, agent-major: each agent's ego state, then the others' relative
+        states in agent order (so one agent's rows over the scenes are contiguous).
+
+        Computed with the scenes innermost (long vectorised loops), in float64, and rounded
+        once to float32; clipping after the rounding gives the same values as before it, the
+        bounds being float32 numbers.
+        """
         world = self.world
+        num_scenes, num_cars = self.num_scenes, self.num_cars
         state = world.state  # (B, N, 4)
-        others = self._others  # (N, N-1)
-        relative = state[:, others] - state[:, :, None, :]  # (B, N, N-1, 4)
-        relative[..., 2] = (relative[..., 2] + np.pi) % (2.0 * np.pi) - np.pi
-        present = world.active[:, others]  # (B, N, N-1)
-        relative *= present[..., None]
-        block = np.concatenate([present[..., None], relative], axis=3)  # (B, N, N-1, 5)
-        flat = np.concatenate([state, block.reshape(*state.shape[:2], -1)], axis=2)  # (B, N, D)
-        return np.clip(flat, self._low, self._high).astype(np.float32)
+        columns = np.ascontiguousarray(state.transpose(2, 1, 0))  # (4, N, B)
+        out = np.empty((num_cars, num_scenes, len(self._low)), dtype=np.float32)  # (N, B, D)
+        out[..., :EGO_FEATURES] = state.transpose(1, 0, 2)
+        block = out[..., EGO_FEATURES:].reshape(num_cars, num_scenes, num_cars - 1, OTHER_FEATURES)
+        active = world.active
+        present = None
+        if not active.all():
+            present = _off_diagonal(np.broadcast_to(active.T[None], (num_cars, *active.T.shape)))
+            block[..., 0] = present.transpose(0, 2, 1)
+        else:
+            block[..., 0] = 1.0
+        for feature in range(EGO_FEATURES):
+            column = columns[feature]  # (N, B)
+            relative = column[None, :, :] - column[:, None, :]  # (N, N, B): [i, j] = j - i
+            if feature == 2:
+                relative = wrap_heading_difference(relative)
+            relative = _off_diagonal(relative)  # (N, N-1, B)
+            if present is not None:
+                relative *= present
+            block[..., feature + 1] = relative.transpose(0, 2, 1)
+        return np.clip(out, self._low, self._high, out=out)
 
     def rewards(
         self, collided: np.ndarray, off_road: np.ndarray, weights: RewardWeights

@@ -164,7 +164,7 @@ class ScenarioVectorEnv:
         no_flags = np.zeros_like(self._live)
         started = np.ones(self.num_envs, dtype=bool)
         infos = self._infos(no_flags, no_flags, self._live, started)
-        return self._per_agent(self.scenes.observations()), infos
+        return self._per_agent_rows(self.scenes.observations()), infos
 
     def step(
         self, actions: Mapping[str, Any] | np.ndarray
@@ -191,14 +191,14 @@ class ScenarioVectorEnv:
         truncated = (self._cycles >= self.max_cycles)[:, None] & acting
         rewards = self.scenes.rewards(collided, off_road, self.rewards)
         rewards[~acting] = 0.0
-        observations = self.scenes.observations()
+        observations = self.scenes.observations()  # (N, B, D)
         shown = acting | restarting[:, None]
-        observations[~shown] = 0.0
+        observations[~shown.T] = 0.0
         self._live = np.where(restarting[:, None], True, acting & ~terminated & ~truncated)
         self._done = ~self._live.any(axis=1)
         infos = self._infos(collided, off_road, shown, restarting)
         return (
-            self._per_agent(observations),
+            self._per_agent_rows(observations),
             self._per_agent(rewards),
             self._per_agent(terminated),
             self._per_agent(truncated),
@@ -288,6 +288,10 @@ class ScenarioVectorEnv:
     def _per_agent(self, values: np.ndarray) -> dict[str, np.ndarray]:
         """(B, N, ...) -> {agent: (B, ...)} (views)."""
         return {agent: values[:, index] for index, agent in enumerate(self.possible_agents)}
+
+    def _per_agent_rows(self, values: np.ndarray) -> dict[str, np.ndarray]:
+        """(N, B, ...) -> {agent: (B, ...)} (contiguous views)."""
+        return dict(zip(self.possible_agents, values))
 
     def _infos(
         self, collided: np.ndarray, off_road: np.ndarray, shown: np.ndarray, reset: np.ndarray

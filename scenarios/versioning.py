@@ -47,6 +47,7 @@ class ScenarioVersion:
     settings: Mapping[str, Any]  # config fields that differ from scenario_class's defaults
     changes: str
     why: str
+    own_settings: Mapping[str, Any]  # the fields this version's entry changed
 
     @property
     def name(self) -> str:
@@ -73,7 +74,14 @@ def family_versions(family: str, title: str, *entries: Version) -> tuple[Scenari
             code, settings = entry.code, {}
         settings.update(entry.settings)
         version = ScenarioVersion(
-            family, title, number, code, MappingProxyType(settings), entry.changes, entry.why
+            family,
+            title,
+            number,
+            code,
+            MappingProxyType(settings),
+            entry.changes,
+            entry.why,
+            MappingProxyType(dict(entry.settings)),
         )
         version.config()  # validated now: a bad setting fails at import, naming the field
         versions.append(version)
