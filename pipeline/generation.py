@@ -58,7 +58,9 @@ DEFAULT_MINOR_RATIO = 0.3  # the paper uses 0.3 and 0.8
 # the scenario generated when none is named: the v1 Double Merge, whose labelled car's observed
 # state decides the attending car's future (docs/scenarios.md); v0 stays available by name
 DEFAULT_SCENARIO = "double_merge_v1"
-MAX_MINOR_RATIO = 10.0  # larger ratios are almost certainly a typo
+# The minor case is the rarer one: at most as many minor as major trajectories. To make the
+# other case the frequent one, name it as the major case instead of a ratio above 1.
+MAX_MINOR_RATIO = 1.0
 MAX_ATTEMPTS = 5  # replacement rounds for rejected (unsafe) episodes
 SPLIT_ORDER = ("train", "val", "test")
 
@@ -99,6 +101,12 @@ class GenerateConfig:
             ("num_test", self.num_test, 0),
         ):
             _check_int(field, value, least)
+        if self.num_minor > self.num_major:
+            raise ValueError(
+                f"num_minor ({self.num_minor}) must be at most num_major ({self.num_major}): the "
+                f"minor case is the rarer one; to make {self.minor_case!r} the frequent case, "
+                f"make it the major_case"
+            )
         if not _is_number(self.val_fraction) or not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
         _check_int("seed", self.seed, 0)
@@ -124,7 +132,8 @@ class GenerateConfig:
 
         `major_case` defaults to the scenario's `default_major_case`; the minor case is the other
         case. The minor count is `num_minor` if given, else round(minor_ratio x num_major) with
-        `minor_ratio` in [0, MAX_MINOR_RATIO] (default DEFAULT_MINOR_RATIO); give one, not both.
+        `minor_ratio` in [0, 1] (default DEFAULT_MINOR_RATIO); give one, not both. The minor
+        case is never the larger one: for more of the other case, make it the major case.
         """
         version = resolve(scenario, stacklevel=3)
         scenario, code = version.name, version.scenario_class
@@ -135,7 +144,10 @@ class GenerateConfig:
         if num_minor is None:
             ratio = DEFAULT_MINOR_RATIO if minor_ratio is None else minor_ratio
             if not _is_number(ratio) or not 0.0 <= ratio <= MAX_MINOR_RATIO:
-                raise ValueError(f"minor_ratio must be in [0, {MAX_MINOR_RATIO:g}], got {ratio}")
+                raise ValueError(
+                    f"minor_ratio must be in [0, {MAX_MINOR_RATIO:g}] (the minor case is the "
+                    f"rarer one; for more of the other case, make it the major_case), got {ratio}"
+                )
             _check_int("num_major", num_major, 1)
             num_minor = round(ratio * num_major)
         minor = next(case for case in cases if case != major)  # a bad major is caught below
@@ -424,7 +436,8 @@ def generate_dataset(
     The output is byte for byte the same for any `workers`, `backend` ("local": processes
     here; "ray": Ray tasks, see `generate_episodes`) and `batch_scenes` (episodes stepped
     together as one batched world; 1: one by one). Missing parent directories are created.
-    A progress bar goes to stderr unless `progress` is False.
+    A progress bar, then a status line while the file is written, go to stderr unless
+    `progress` is False.
     Raises FileExistsError if `out` exists and not `overwrite` (checked before any work, and
     again when writing), IsADirectoryError if it is a directory, another OSError if it cannot be
     written, ValueError for workers < 1 or batch_scenes < 1, UnsafeExpertError (see
@@ -469,6 +482,8 @@ def generate_dataset(
         address=address,
         batch_scenes=batch_scenes,
     )
+    if progress:  # stacking and writing a large set takes seconds: say what is going on
+        print(f"writing {len(episodes):,} trajectories to {out} ...", file=sys.stderr, flush=True)
     scenario = VERSIONS[config.scenario].make()
     splits = _build_splits(slots, episodes, scenario)
     meta = _dataset_meta(config, scenario, rejected)

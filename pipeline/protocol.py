@@ -32,8 +32,7 @@ class ReproductionError(ValueError):
 
 
 # The settings use the v1 scenarios (docs/scenarios.md: there the labelled car's observed state
-# decides the attending car's future); the v0 ones ("double_merge", "halting_car") stay
-# available by name.
+# decides the attending car's future), by exact version name: the published results are on v1.
 
 
 @dataclass(frozen=True)
@@ -41,7 +40,7 @@ class Setting:
     """One experimental setting: a scenario, its major case and its training-pool sizes."""
 
     name: str
-    scenario: str  # key of scenarios.SCENARIOS
+    scenario: str  # a version name (scenarios.VERSIONS)
     major_case: str
     num_major: int  # major-case trajectories, training + validation
     num_minor: int  # minor-case trajectories, training + validation

@@ -108,7 +108,7 @@ def format_error(source: str, what: str) -> FormatError:
 class DatasetMeta:
     """File-level description shared by all splits (root attributes of the file)."""
 
-    scenario: str  # scenario name, e.g. "double_merge"
+    scenario: str  # scenario version, e.g. "halting_car_v3" (older files: "halting_car" = v0)
     dt: float  # seconds between two recorded steps [s]
     num_observed: int  # suggested number of observed (history) steps
     num_predicted: int  # suggested number of predicted steps

@@ -134,6 +134,8 @@ def test_config_accepts_the_edges_of_its_ranges():
         (dict(minor_ratio=0.3, num_minor=3), "either minor_ratio or num_minor"),
         (dict(minor_ratio=-0.1), "minor_ratio"),
         (dict(minor_ratio=1e6), "minor_ratio"),
+        (dict(minor_ratio=1.5), r"minor_ratio must be in \[0, 1\] \(the minor case is the rarer"),
+        (dict(num_major=4, num_minor=5), r"num_minor \(5\) must be at most num_major \(4\)"),
         (dict(minor_ratio=float("nan")), "minor_ratio"),
         (dict(major_case="major"), "major_case"),
         (dict(num_major=0), "num_major"),

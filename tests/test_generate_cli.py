@@ -53,12 +53,34 @@ def test_cli_smoke_summary_and_refuses_overwrite(tmp_path):
         result.stdout,
     ), result.stdout
     assert read_meta(out).num_steps > 0
+    # no silent phase: after the progress bar, a status line while the file is written
+    assert f"writing 9 trajectories to {out} ...\n" in result.stderr
     first = out.read_bytes()
     again = run_generate(*args)
     assert again.returncode == 2 and "--overwrite" in again.stderr
     assert out.read_bytes() == first
     replaced = run_generate(*args, "--overwrite", "--seed", "3")
     assert replaced.returncode == 0 and out.read_bytes() != first
+
+
+def test_a_family_name_means_the_latest_version_and_says_so(tmp_path):
+    out = tmp_path / "hc.h5"
+    args = ["--scenario", "halting_car", "--num-major", "2", "--num-test", "1", "--out", str(out)]
+    result = run_generate(*args, "--minor-ratio", "0.5")
+    assert result.returncode == 0, result.stderr
+    notice = [line for line in result.stderr.splitlines() if line.startswith("notice:")]
+    assert notice == [
+        "notice: using the latest version halting_car_v3 for the unversioned name "
+        "'halting_car' (name a version, e.g. halting_car_v0, to pin one)"
+    ]
+    meta = read_meta(out)
+    assert (
+        meta.scenario == "halting_car_v3" and meta.config["generator"]["scenario"] == meta.scenario
+    )
+    for old_spelling in ("halting_car_v0", "double_merge_v0"):
+        pinned = run_generate("--scenario", old_spelling, *args[2:], "--overwrite")
+        assert pinned.returncode == 0 and "notice" not in pinned.stderr
+        assert read_meta(out).scenario == old_spelling
 
 
 @pytest.mark.parametrize(
@@ -69,6 +91,15 @@ def test_cli_smoke_summary_and_refuses_overwrite(tmp_path):
             "unknown scenario 'roundabout'; choose from double_merge_v0",
         ),
         (["--scenario", "halting_car_v0", "--minor-ratio", "-0.1"], "--minor-ratio"),
+        (
+            ["--scenario", "halting_car_v0", "--minor-ratio", "1.5"],
+            "--minor-ratio must be in [0, 1] (the minor case is the rarer one; for more of the "
+            "other case, make it the --major-case), got 1.5",
+        ),
+        (
+            ["--scenario", "halting_car_v0", "--num-major", "4", "--num-minor", "6"],
+            "--num-minor (6) must be at most --num-major (4)",
+        ),
         (["--scenario", "halting_car_v0", "--minor-ratio", "1e6"], "--minor-ratio"),
         (["--scenario", "halting_car_v0", "--num-major", "2.5"], "invalid int"),
         (["--scenario", "halting_car_v0", "--num-test", "ten"], "invalid int"),

@@ -58,14 +58,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--minor-ratio",
         type=float,
         default=None,
-        help="minor-case training trajectories = round(R x num-major) "
+        help="minor-case training trajectories = round(R x num-major), R in [0, 1]: the minor "
+        "case is the rarer one; for more of the other case give it as --major-case "
         f"(default {DEFAULT_MINOR_RATIO:g}; the paper uses 0.3 and 0.8)",
     )
     parser.add_argument(
         "--num-minor",
         type=int,
         default=None,
-        help="explicit minor-case training count instead of --minor-ratio",
+        help="explicit minor-case training count instead of --minor-ratio, at most --num-major",
     )
     parser.add_argument(
         "--major-case",
