@@ -17,7 +17,7 @@ and a pymunk narrow phase for the few candidates.
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -111,25 +111,52 @@ class BatchedWorld:
         """Cars per scene, N."""
         return self._shape[1]
 
+    def _view(self, key: str, make: Callable[[], np.ndarray]) -> np.ndarray:
+        """A read-only view, made once per step (a step replaces the state arrays; restart
+        and deactivate change them in place, which views follow)."""
+        cache = self.__dict__.setdefault("_view_cache", {})
+        view = cache.get(key)
+        if view is None:
+            view = cache[key] = _readonly(make())
+        return view
+
+    def _forget_views(self) -> None:
+        self.__dict__.pop("_view_cache", None)
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state.pop("_view_cache", None)  # views would unpickle as copies, not views
+        return state
+
     @property
     def xy(self) -> np.ndarray:
         """Centre positions [m], (B, N, 2), read-only view."""
-        return _readonly(self._xy.reshape(*self._shape, 2))
+        return self._view("xy", lambda: self._xy.reshape(*self._shape, 2))
 
     @property
     def heading(self) -> np.ndarray:
         """Headings [rad] in [-pi, pi), (B, N), read-only view."""
-        return _readonly(self._heading.reshape(self._shape))
+        return self._view("heading", lambda: self._heading.reshape(self._shape))
 
     @property
     def speed(self) -> np.ndarray:
         """Speeds [m/s], (B, N), read-only view."""
-        return _readonly(self._speed.reshape(self._shape))
+        return self._view("speed", lambda: self._speed.reshape(self._shape))
 
     @property
     def active(self) -> np.ndarray:
         """(B, N) bool, read-only view: the car takes part (not removed by `deactivate`)."""
-        return _readonly(self._active)
+        return self._view("active", lambda: self._active)
+
+    def flat(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Flat read-only views (B*N,), scene-major: x, y, heading, speed, active."""
+        return (
+            self._view("x", lambda: self._xy[:, 0]),
+            self._view("y", lambda: self._xy[:, 1]),
+            self._view("flat_heading", lambda: self._heading),
+            self._view("flat_speed", lambda: self._speed),
+            self._view("flat_active", lambda: self._active.reshape(-1)),
+        )
 
     @property
     def state(self) -> np.ndarray:
@@ -181,6 +208,7 @@ class BatchedWorld:
         """An independent copy (state arrays copied; road and collision checker shared, which
         is safe because the checker holds no state between queries)."""
         clone = copy.copy(self)
+        clone._forget_views()
         clone._xy = self._xy.copy()
         clone._heading = self._heading.copy()
         clone._speed = self._speed.copy()
@@ -196,6 +224,7 @@ class BatchedWorld:
         if not 0 <= index < self.num_scenes:
             raise IndexError(f"scene {index} out of range: this world has {self.num_scenes}")
         single = copy.copy(self)
+        single._forget_views()
         single._shape = (1, self.num_cars)
         cars = slice(index * self.num_cars, (index + 1) * self.num_cars)
         single._xy, single._heading = self._xy[cars].copy(), self._heading[cars].copy()
@@ -244,6 +273,7 @@ class BatchedWorld:
             self._heading[active] = heading[active]
             self._speed[active] = speed[active]
         self._step_count += 1
+        self._forget_views()
 
     def _refuse(self, flat_index: int, controls: np.ndarray) -> None:
         scene, car = divmod(flat_index, self.num_cars)
@@ -276,8 +306,10 @@ class BatchedWorld:
         return self._scene_pairs(scene, low[scene], high[scene])
 
     def _scene_pairs(self, scene: int, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-        xy, heading = self.xy[scene], self.heading[scene]
-        return self._checker.collision_pairs(low, high, xy, heading, self._active[scene])
+        cars = slice(scene * self.num_cars, (scene + 1) * self.num_cars)
+        return self._checker.collision_pairs(
+            low, high, self._xy[cars], self._heading[cars], self._active[scene]
+        )
 
     def _candidate_scenes(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
         """Scenes with at least one pair i < j of active cars with overlapping bounding boxes
@@ -305,6 +337,7 @@ class BatchedWorld:
 
     def _off_road(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
         d_min, d_max = self.road.lateral_bounds
+        num_cars = self.num_cars
         x = self._xy[:, 0].reshape(self._shape)  # (B, N)
         inside = (
             (low[..., 1].min(axis=1) > d_min)
@@ -313,13 +346,15 @@ class BatchedWorld:
             & (x.max(axis=1) <= self.road.length_m)
         )  # (B,) every box strictly between the straight edges: nothing off the road
         off = np.zeros(self._shape, dtype=bool)
-        xy, heading = self.xy, self.heading
+        if inside.all():
+            return off
         for scene in np.nonzero(~inside)[0].tolist():
-            active = self._active[scene]
+            cars = slice(scene * num_cars, (scene + 1) * num_cars)
+            xy, active = self._xy[cars], self._active[scene]
             touching = self._checker.edge_contacts(
-                low[scene], high[scene], xy[scene], heading[scene], active
+                low[scene], high[scene], xy, self._heading[cars], active
             )
-            off[scene] = (touching | (self.road.lane_index(xy[scene]) < 0)) & active
+            off[scene] = (touching | (self.road.lane_index(xy) < 0)) & active
         return off
 
 

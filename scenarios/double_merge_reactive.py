@@ -41,11 +41,11 @@ from carlo_lite import BatchedWorld
 from scenarios.base import Range, span
 from scenarios.controllers import IDMParams
 from scenarios.double_merge import (
+    MERGE,
     DoubleMerge,
     DoubleMergeConfig,
     DoubleMergeExpert,
     DoubleMergePlan,
-    RearPhase,
 )
 from scenarios.expert import History, python_min, scalar_idm_accel
 
@@ -115,7 +115,7 @@ class ReactiveDoubleMergeExpert(DoubleMergeExpert):
         departure = (y[self.front_car] - self.front_lane) * np.sign(
             self.rear_lane - self.front_lane
         )
-        front_present = world.active.reshape(-1)[self.front_car]
+        front_present = world.flat()[4][self.front_car]
         self.following |= front_present & (departure >= self.config.follow_trigger_m)
         super().update(world)
         self._rear_seen.append(self._rear_intended_accel(world))
@@ -125,8 +125,7 @@ class ReactiveDoubleMergeExpert(DoubleMergeExpert):
         """(B,) the rear car's acceleration for the scene now: cruise, and once it has seen the
         front car leave its lane the IDM towards it (the lower of the two); a removed front
         car is no longer followed."""
-        x, _, _, speed = self.flat(world)
-        active = world.active.reshape(-1)
+        x, _, _, speed, active = world.flat()
         rear_speed = speed[self.rear_car]
         accel = self.track(rear_speed, self.cruise_speed_mps)
         closing = rear_speed - speed[self.front_car]
@@ -159,7 +158,7 @@ class ReactiveDoubleMergeExpert(DoubleMergeExpert):
         return accel
 
     def interaction(self, world: BatchedWorld) -> np.ndarray:
-        return self.following & (self.rear_phase < RearPhase.MERGE)
+        return self.following & (self.rear_phase < MERGE)
 
 
 class ReactiveDoubleMerge(DoubleMerge):

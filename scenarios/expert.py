@@ -176,8 +176,7 @@ class Expert(ABC):
     @staticmethod
     def flat(world: BatchedWorld) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Flat read-only views of `world`: x, y, heading, speed, (B*N,) each."""
-        xy = world.xy.reshape(-1, 2)
-        return xy[:, 0], xy[:, 1], world.heading.reshape(-1), world.speed.reshape(-1)
+        return world.flat()[:4]
 
     @abstractmethod
     def update(self, world: BatchedWorld) -> None:
@@ -202,9 +201,11 @@ class Expert(ABC):
             self.config.lateral_gains,
             accel_ff,
         )
-        acceleration = self._accelerations(world)  # (B*N,)
-        actions = np.stack([steering, acceleration], axis=1).astype(np.float32)  # (B*N, 2)
-        return actions.reshape(self.num_scenes, self.num_cars, 2)
+        actions = np.empty((self.num_scenes, self.num_cars, 2), dtype=np.float32)
+        flat = actions.reshape(-1, 2)  # (B*N, 2), a view
+        flat[:, 0] = steering  # rounded to float32 as it is stored
+        flat[:, 1] = self._accelerations(world)
+        return actions
 
     def _lateral_references(
         self, world: BatchedWorld, control_time: np.ndarray
