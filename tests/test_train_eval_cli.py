@@ -196,7 +196,7 @@ def test_closed_stdout_ends_quietly(smoke):
         (
             "train.py",
             ["--data", "{data}", "--out", "{run}", "--resume", "--lr", "0.5"],
-            "keeps its stored configuration: lr is 0.001 there",
+            "--lr 0.5 differs from the stored run's --lr 0.001 (a resumed run keeps its",
         ),
         (
             "evaluate.py",
@@ -408,7 +408,10 @@ def test_train_interrupted_in_the_first_epoch_keeps_nothing(smoke, tmp_path, cap
         load_tool("train.py").main(argv)
     assert exit_info.value.code == 130
     err = capsys.readouterr().err
-    assert err == f"error: interrupted before the first epoch ended; nothing was kept in {run}\n"
+    assert err == (
+        f"error: interrupted before the first epoch ended; nothing was kept in {run}; run the "
+        "same command again to start over\n"
+    )
     assert not run.exists()
 
 
