@@ -8,6 +8,7 @@ stderr, `error: ...`, never a traceback.
 
 - `ArgumentParser`: argparse whose usage errors are one line on stderr with exit status 2.
 - `fail(msg, code=2)`: print one error line to stderr and exit.
+- `status(message)`: a status line on stderr, for a phase without a progress bar.
 - `require_file(path)`: exit 2 unless `path` is an existing file.
 - `check_output(path, overwrite)`: exit 2 if the output exists (without overwrite) or its
   directory can be neither written nor created.
@@ -86,6 +87,11 @@ def run_main(main: Callable[[list[str] | None], None], argv: list[str] | None = 
         fail("interrupted", code=INTERRUPTED)
 
 
+def status(message: str) -> None:
+    """A status line on stderr (flushed), for a phase that shows no progress bar."""
+    print(message, file=sys.stderr, flush=True)
+
+
 def fail(msg: str, code: int = USAGE) -> NoReturn:
     """Print `error: msg` as one line on stderr and exit with `code` (2: usage/input error)."""
     print(f"error: {' '.join(str(msg).split())}", file=sys.stderr)
@@ -108,13 +114,17 @@ def require_file(path: str | os.PathLike, what: str = "input file") -> Path:
     return path
 
 
-def check_output(path: str | os.PathLike, overwrite: bool = False) -> Path:
+def check_output(
+    path: str | os.PathLike, overwrite: bool = False, elsewhere: str | None = None
+) -> Path:
     """The path as a Path; exits 2 if it exists (unless overwrite), or if its directory can
     neither be written nor created in the nearest existing folder above it (missing folders are
-    created by `writing`, as the generator and trainer create theirs)."""
+    created by `writing`, as the generator and trainer create theirs). `elsewhere` names the
+    option that writes to another path (e.g. "--out FILE"), for the message."""
     path = Path(path)
     if path.exists() and not overwrite:
-        fail(f"output {path} already exists; pass --overwrite to replace it")
+        other = f", or {elsewhere} to write elsewhere" if elsewhere else ""
+        fail(f"output {path} already exists; pass --overwrite to replace it{other}")
     if path.is_dir():
         fail(f"output {path} is a directory")
     existing = next(p for p in (path.parent, *path.parent.parents) if p.exists() or p == Path())

@@ -25,12 +25,27 @@ import imageio.v3 as iio
 import numpy as np
 
 from carlo_lite import render_rgb
-from pipeline.cli import ArgumentParser, fail, run_main, writing
-from pipeline.generation import DEFAULT_SCENARIO, GenerateConfig, generate_dataset
-from predictor.evaluation import evaluate_baseline, evaluate_run
+from pipeline.cli import (
+    FAILED,
+    INTERRUPTED,
+    ArgumentParser,
+    fail,
+    run_main,
+    status,
+    write_failure_code,
+    writing,
+)
+from pipeline.generation import (
+    DEFAULT_SCENARIO,
+    GenerateConfig,
+    UnsafeExpertError,
+    generate_dataset,
+)
+from predictor.evaluation import EvaluationError, evaluate_baseline, evaluate_run
 from predictor.format_reader import read_meta, read_split
 from predictor.plots import plot_attention, plot_predictions, plot_samples, save_figure
-from predictor.presets import make_configs
+from predictor.presets import DEFAULT_PRESET, make_configs
+from predictor.run_files import RunError, RunWriteError
 from predictor.training import train
 from scenarios import SCENARIOS
 from scenarios.rollout import advance
@@ -119,20 +134,39 @@ def main(argv: list[str] | None = None) -> None:
         model_cfg, train_cfg = make_configs("ours", epochs=args.epochs, seed=args.seed)
     except ValueError as err:
         fail(f"--seed: {err}")
-    started = time.perf_counter()
     out = Path(args.out)
     replace_output_folder(out, args.overwrite)
+    try:
+        run_demo(out, config, model_cfg, train_cfg)
+    except KeyboardInterrupt:
+        fail(
+            f"interrupted; {out} holds what was done so far; run the demo again to start over",
+            INTERRUPTED,
+        )
+    except FloatingPointError as err:
+        fail(f"training diverged: {err}", FAILED)
+    except RunWriteError as err:
+        fail(str(err), write_failure_code(err.errno))
+    except OSError as err:
+        fail(f"cannot write in {out}: {err.strerror or err}", write_failure_code(err.errno))
+    except (UnsafeExpertError, RunError, EvaluationError) as err:  # the defaults failed
+        fail(str(err), FAILED)
 
-    print(f"== simulate: wrote {simulate_episode(out, args.seed)}", flush=True)
+
+def run_demo(out: Path, config: GenerateConfig, model_cfg, train_cfg) -> None:
+    """The demo's five steps into the emptied folder `out`: a line on stdout as each starts and
+    the results on its last line; bars and status lines on stderr."""
+    started = time.perf_counter()
+    print(f"== simulate: wrote {simulate_episode(out, config.seed)}", flush=True)
     data = out / f"{DEMO_SCENARIO}.h5"
     print("== generate", flush=True)
     print(generate_dataset(config, data).summary(), flush=True)
     print("== train", flush=True)
     run = out / "run_ours"
-    print(train(data, model_cfg, train_cfg, run).summary("ours"), flush=True)
+    print(train(data, model_cfg, train_cfg, run, preset=DEFAULT_PRESET).summary("ours"), flush=True)
     print("== evaluate", flush=True)
-    ours = evaluate_run(run, data, "test")
-    const_vel = evaluate_baseline("const_vel", data, "test")
+    ours = evaluate_run(run, data, "test", progress=True)
+    const_vel = evaluate_baseline("const_vel", data, "test", progress=True)
     write_json(run / "eval.json", ours.to_dict())
     write_json(out / "eval_const_vel.json", const_vel.to_dict())
     with writing(out / "predictions.npz") as temp:
@@ -140,14 +174,15 @@ def main(argv: list[str] | None = None) -> None:
     for evaluation in (ours, const_vel):
         print(f"{evaluation.predictor}: {evaluation.headline()}", flush=True)
     print("== plot", flush=True)
+    status("plot: samples.png, predictions.png, attention.png")
     write_figure(out / "samples.png", plot_samples(read_split(data, "train"), read_meta(data)))
     write_figure(out / "predictions.png", plot_predictions(ours.predictions, 0))
     write_figure(out / "attention.png", plot_attention(ours.predictions, 0, 0, 1))
     ade = [e.to_dict()["main_agents"]["overall"]["ade"] for e in (ours, const_vel)]
     print(
         f"demo done in {time.perf_counter() - started:.0f} s: test ADE of the main cars "
-        f"{ade[0]:.2f} m (ours, {args.epochs} epochs) vs {ade[1]:.2f} m (constant velocity); "
-        f"results in {out}/"
+        f"{ade[0]:.2f} m (ours, {train_cfg.epochs} epochs) vs {ade[1]:.2f} m (constant "
+        f"velocity); results in {out}/"
     )
 
 

@@ -28,7 +28,15 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.cli import ArgumentParser, check_output, fail, writing
+from pipeline.cli import (
+    INTERRUPTED,
+    ArgumentParser,
+    check_output,
+    fail,
+    run_main,
+    write_failure_code,
+    writing,
+)
 from scenarios import SCENARIOS, env_module
 
 STEER_RAD = 0.12  # steering while an arrow key is held
@@ -206,7 +214,7 @@ def save_video(video: Path, frames: list[np.ndarray], args: argparse.Namespace) 
     try:
         write_video(video, frames, fps)
     except OSError as error:
-        fail(f"cannot write {video}: {error.strerror or error}")
+        fail(f"cannot write {video}: {error.strerror or error}", write_failure_code(error.errno))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -217,7 +225,7 @@ def main(argv: list[str] | None = None) -> None:
         if video is not None:
             save_video(video, frames, args)
     except KeyboardInterrupt:
-        fail("interrupted; nothing was written", code=130)
+        fail("interrupted; nothing was written", code=INTERRUPTED)
     message = (
         f"{args.scenario} {case} seed {args.seed}: {summary['steps']} steps, "
         f"{len(summary['removed'])} of {summary['cars']} cars removed"
@@ -229,4 +237,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)
