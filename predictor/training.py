@@ -32,6 +32,7 @@ import json
 import math
 import os
 import random
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -239,8 +240,8 @@ def run_epoch(
         for name, value in terms.items():
             sums[name] = sums.get(name, 0.0) + value
         steps += 1
-        bar.update(1)
         bar.set_postfix(epoch=state.epoch + 1, loss=f"{terms['loss']:.3f}", refresh=False)
+        bar.update(1)
     return {name: total / max(steps, 1) for name, total in sums.items()}
 
 
@@ -329,6 +330,13 @@ def _train(
     except ValueError as err:
         raise RunError(f"{data_path}: {err}") from None
     check_labels(model_cfg, train_set.meta, data_path)
+    if progress:  # seconds before the bar: the optimiser's first use imports much of torch
+        print(
+            f"train {train_cfg.variant}: building the model and optimiser on "
+            f"{len(train_set)} training scenes",
+            file=sys.stderr,
+            flush=True,
+        )
     state = build_state(model_cfg, train_cfg, train_set)
     if resume:
         checkpoint = read_checkpoint(out / "last.pt")
@@ -460,6 +468,7 @@ def _one_epoch(
     # nor does the prior of refit_on_prior, so the fit at the first epoch (kept in the
     # checkpoint) holds for every later one
     if state.refit_scenes is not None and (changes or epoch == 1):
+        bar.set_postfix_str(f"epoch {epoch}: refitting the highway", refresh=True)
         scenes = state.refit_scenes
         state.model.refit_attended(
             scenes.positions, scenes.valid, num_observed, scenes.attention, scenes.roles
@@ -469,6 +478,7 @@ def _one_epoch(
     val, best = None, False
     due = epoch % config.eval_every == 0 or epoch == config.epochs
     if val_set is not None and due:
+        bar.set_postfix_str(f"epoch {epoch}: validating", refresh=True)
         val = validation_scores(state.model, val_set)
         current = selection_score(val)
         if current is not None and (state.best_score is None or current < state.best_score):

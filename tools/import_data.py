@@ -78,9 +78,9 @@ def _run(args: argparse.Namespace) -> list[Path]:
     """The import the subcommand asks for; ValueError for a bad setting."""
     if args.command == "eth-ucy":
         config = EthUcyConfig(scenes=tuple(args.scenes), stride=args.stride)
-        return import_eth_ucy(args.root, args.out, config, overwrite=args.overwrite)
+        return import_eth_ucy(args.root, args.out, config, args.overwrite, progress=True)
     config = InteractionConfig(stride=args.stride, seed=args.seed)
-    return [import_interaction(args.inputs, args.out, config, overwrite=args.overwrite)]
+    return [import_interaction(args.inputs, args.out, config, args.overwrite, progress=True)]
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -104,7 +104,7 @@ import sys
 from pathlib import Path
 
 from pipeline.backends import BACKENDS
-from pipeline.cli import FAILED, INTERRUPTED, ArgumentParser, fail, run_main
+from pipeline.cli import FAILED, INTERRUPTED, ArgumentParser, fail, run_main, status
 from pipeline.protocol import (
     ALL_VARIANTS,
     DATA_SEED,
@@ -371,6 +371,7 @@ def main(argv: list[str] | None = None) -> None:
             budget_s,
             backend=args.backend,
             address=args.address,
+            status=status,
         )
     except KeyboardInterrupt:
         fail(
