@@ -18,11 +18,13 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 import time
 from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
+from tqdm import tqdm
 
 from carlo_lite import render_rgb
 from pipeline.cli import (
@@ -35,6 +37,7 @@ from pipeline.cli import (
     write_failure_code,
     writing,
 )
+from pipeline.frames import annotate, legend_entries
 from pipeline.generation import (
     DEFAULT_SCENARIO,
     GenerateConfig,
@@ -71,15 +74,21 @@ DEMO_FILES = frozenset(
 
 
 def simulate_episode(out: Path, seed: int) -> Path:
-    """Run one expert episode of the minor case and write its last frame and a GIF."""
+    """Run one expert episode of the minor case and write its middle frame and a GIF, each
+    frame titled (scenario, case, time) with a legend of the car colours."""
     scenario = SCENARIOS[DEMO_SCENARIO]()
     world = scenario.reset(seed, "minor")
+    legend = legend_entries(DEMO_SCENARIO, list(world.roles))
+    dt = scenario.config.recorded_dt
     frames = []
-    for _ in range(scenario.config.num_steps):
+    steps = scenario.config.num_steps
+    for step in tqdm(range(steps), desc="simulate an episode", unit="step", file=sys.stderr):
         scenario.update(world)
         advance(world, scenario.expert_actions(world), scenario.config.record_every)
         center = (float(world.xy[:2, 0].mean()), world.road.width_m / 2)
-        frames.append(render_rgb(world, 640, 160, center_xy=center))
+        title = f"{DEMO_SCENARIO}, minor case, expert drivers: t = {(step + 1) * dt:.1f} s"
+        frames.append(annotate(render_rgb(world, 640, 160, center_xy=center), title, legend))
+    status("simulate: writing episode.png and episode.gif")
     iio.imwrite(out / "episode.png", frames[len(frames) // 2])
     iio.imwrite(out / "episode.gif", np.stack(frames[::2]), duration=200, loop=0)
     return out / "episode.gif"
