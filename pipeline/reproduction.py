@@ -45,6 +45,7 @@ from __future__ import annotations
 import datetime
 import json
 import time
+from collections.abc import Callable
 from dataclasses import asdict, astuple, dataclass
 from pathlib import Path
 
@@ -383,12 +384,14 @@ def reproduce(
     budget_s: float | None = None,
     backend: str = "local",
     address: str | None = None,
+    status: Callable[[str], None] | None = None,
 ) -> Outcome:
     """Run what the cache in `out_dir` and the results `store` lack and write the report at
     `report` (a .md file; results.json and results/ go beside it). `command` is how the report
     names the invocation. With `budget_s`, no run starts after that many seconds: the running
     ones finish and the report covers what is done. `backend` "local" runs `jobs` processes
-    here, "ray" Ray tasks on the cluster at `address` (see the module).
+    here, "ray" Ray tasks on the cluster at `address` (see the module). `status(line)` hears of
+    the phases without a progress bar (collecting the results, writing the report).
 
     Raises FileExistsError if the report or results.json beside it exists and not `overwrite`,
     ReproductionError for an unusable cache entry, RuntimeError if a dataset cannot be made,
@@ -405,6 +408,8 @@ def reproduce(
     report.parent.mkdir(parents=True, exist_ok=True)
     deadline = None if budget_s is None else time.monotonic() + budget_s
     counts = execute(protocol, out_dir, jobs, store, deadline, backend, address)
+    say = status or (lambda line: None)
+    say(f"reproduce: collecting the results of {counts.runs} runs")
     history = log_invocation(out_dir, store, command, time.perf_counter() - started, counts)
     source = ReportInput(
         protocol=protocol,
@@ -419,5 +424,6 @@ def reproduce(
         seconds=time.perf_counter() - started,
         history=history,
     )
+    say(f"reproduce: writing the report, its figures and results.json to {report.parent}")
     figures = write_report(source, report)
     return Outcome(report, figures, counts, time.perf_counter() - started)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -22,6 +23,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from predictor.baselines import (
     BASELINES,
@@ -104,13 +106,18 @@ def load_model(path: str | os.PathLike) -> tuple[SmoothAttentionPredictor, dict]
 
 # --------------------------------------------------------------------------- predicting
 def predict_model(
-    model: SmoothAttentionPredictor, batch: Batch, num_observed: int, batch_size: int = 32
+    model: SmoothAttentionPredictor,
+    batch: Batch,
+    num_observed: int,
+    batch_size: int = 32,
+    on_batch: Callable[[int], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Predict every scene of `batch` from its observed steps, feeding back the predicted means.
 
     Returns (pred_mean (n, T_pred, N, 2) [m] of steps T_obs .. T-1, attention (n, T-1, N, N)),
     both float32. The attention is theta^t over the teacher-forced observed part
-    (t < T_obs-1) followed by the fed-back part (t = T_obs-1 .. T-2).
+    (t < T_obs-1) followed by the fed-back part (t = T_obs-1 .. T-2). `on_batch(scenes)` is
+    called after each batch (progress).
     """
     num_agents, num_steps = batch.num_agents, batch.num_steps
     means = [np.zeros((0, num_steps - num_observed, num_agents, 2), np.float32)]
@@ -125,6 +132,8 @@ def predict_model(
         theta = torch.cat([out.attention[:, :-1], out.rollout_attention], 1)  # (b, T-1, N, N-1)
         means.append(out.rollout.mean.numpy().astype(np.float32))
         attentions.append(expand_attention(theta).numpy().astype(np.float32))
+        if on_batch is not None:
+            on_batch(len(theta))
     return np.concatenate(means), np.concatenate(attentions)
 
 
@@ -188,6 +197,40 @@ def score(predictions: Predictions) -> dict:
     return result
 
 
+# --------------------------------------------------------------------------- progress
+class _Stages:
+    """A progress bar on stderr over an evaluation's passes through the split's scenes: one
+    per prediction of them all (the forecast, the diagnostics' passes), with the stage named.
+    The number of passes is an upper bound (the counterfactual skips ranks nothing counts in):
+    the bar is completed on closing."""
+
+    def __init__(self, predictor: str, scenes: int, passes: int, enabled: bool) -> None:
+        self.predictor = predictor
+        self.bar = tqdm(
+            total=scenes * passes,
+            desc=f"evaluate {predictor}",
+            unit="scene",
+            disable=not enabled,
+            file=sys.stderr,
+        )
+
+    def stage(self, name: str) -> None:
+        self.bar.set_description_str(f"evaluate {self.predictor}: {name}")
+
+    def advance(self, scenes: int) -> None:
+        self.bar.update(scenes)
+
+    def close(self) -> None:
+        self.bar.total = self.bar.n
+        self.bar.set_description_str(f"evaluate {self.predictor}")
+        self.bar.close()
+
+
+def _counterfactual_passes(focal: np.ndarray) -> int:
+    """At most how many predictions of the split `counterfactual_shift` makes."""
+    return 1 + 2 * int(focal.sum(axis=1).max(initial=0))
+
+
 # --------------------------------------------------------------------------- evaluating
 @dataclass(frozen=True)
 class RunSource:
@@ -211,6 +254,8 @@ class Evaluation:
     source: RunSource | None = None  # None for a baseline
     baseline: dict[str, Any] | None = None  # a fitted baseline's fit: split, scenes, alpha...
     diagnostics: dict[str, Any] | None = None  # error curves, one-step error, counterfactual
+    # (trained, evaluated) scenario names of a run evaluated on another scenario's data
+    scenario_mismatch: tuple[str, str] | None = None
 
     @property
     def split(self) -> str:
@@ -240,6 +285,9 @@ class Evaluation:
                 epoch=source.epoch,
                 train_data=source.train_data,
             )
+        if self.scenario_mismatch is not None:
+            trained, evaluated = self.scenario_mismatch
+            info["scenario_mismatch"] = {"trained_on": trained, "evaluated_on": evaluated}
         if self.baseline is not None:
             info["baseline_fit"] = self.baseline
         extra = {} if self.diagnostics is None else {"diagnostics": self.diagnostics}
@@ -248,6 +296,17 @@ class Evaluation:
     def headline(self) -> str:
         """One line with the main-agent ADE/FDE and the attention accuracy."""
         return headline(self.scores)
+
+    def mismatch_note(self) -> str | None:
+        """One line naming the scenario the run was trained on and the one evaluated, when they
+        differ (None otherwise)."""
+        if self.scenario_mismatch is None:
+            return None
+        trained, evaluated = self.scenario_mismatch
+        return (
+            f"scenario mismatch: the run was trained on {trained} data and is evaluated on "
+            f"{evaluated} data (same dt, horizons and agent count)"
+        )
 
     def save_predictions(
         self, path: str | os.PathLike, rows: Sequence[int] | np.ndarray | None = None
@@ -263,12 +322,21 @@ def evaluate_run(
     split: str = "test",
     checkpoint: str = "best",
     batch_size: int = 32,
+    progress: bool = False,
+    allow_scenario_mismatch: bool = False,
 ) -> Evaluation:
-    """Score checkpoint `checkpoint` ("best" or "last") of a run on a split of `data_path`.
+    """Score checkpoint `checkpoint` ("best" or "last") of a run on a split of `data_path`
+    (with `progress`, a bar on stderr through the predictions and diagnostics).
+
+    The file must be of the scenario, dt and horizons of the run's training data; with
+    `allow_scenario_mismatch`, of another scenario too when dt, the horizons and the agent count
+    match (a transfer study, e.g. a model of one scenario version on another's data): the
+    `Evaluation` then names both scenarios (`scenario_mismatch`, also in `to_dict`).
 
     Raises CheckpointError for a missing or unreadable checkpoint, FormatError for a bad data
-    file, EvaluationError for an empty split or a file whose scenario, dt or horizons differ from
-    the run's training data.
+    file, ScenarioMismatchError (an EvaluationError) for a file of another scenario that was not
+    allowed, EvaluationError for an empty split or a file whose dt, horizons or (with another
+    scenario) agent count differ from the run's training data.
     """
     if checkpoint not in CHECKPOINTS:
         raise EvaluationError(f"checkpoint must be one of {CHECKPOINTS}, got {checkpoint!r}")
@@ -277,7 +345,14 @@ def evaluate_run(
     path = Path(run_dir) / f"{checkpoint}.pt"
     model, stored = load_model(path)
     dataset = _load_split(data_path, split)
-    check_data_matches(stored, dataset.meta, path, data_path)
+    mismatch = check_data_matches(
+        stored,
+        dataset.meta,
+        path,
+        data_path,
+        allow_scenario_mismatch,
+        dataset.all().num_agents,
+    )
     if model.config.attention_mode == "oracle" and not dataset.meta.has("attention"):
         raise EvaluationError(
             f"{path} uses the oracle attention (variant correct), which reads attention labels; "
@@ -289,32 +364,49 @@ def evaluate_run(
             f"{path} reads agent roles {', '.join(trained_roles)}, but {data_path} names "
             f"{', '.join(dataset.meta.role_names)}"
         )
-    pred_mean, attention = predict_model(
-        model, dataset.all(), dataset.meta.num_observed, batch_size
-    )
+    variant = str(stored["train_config"]["variant"])
+    passes = 2 + _counterfactual_passes(dataset.data.focal)
+    stages = _Stages(variant, len(dataset), passes, progress)
+    try:
+        stages.stage("predictions")
+        pred_mean, attention = predict_model(
+            model, dataset.all(), dataset.meta.num_observed, batch_size, stages.advance
+        )
+        batch, num_observed = dataset.all(), dataset.meta.num_observed
+
+        def predict(states: np.ndarray, valid: np.ndarray) -> np.ndarray:
+            moved = replace(batch, states=torch.from_numpy(states), valid=torch.from_numpy(valid))
+            return predict_model(model, moved, num_observed, batch_size, stages.advance)[0]
+
+        stages.stage("one-step error")
+        diagnostics = {"one_step": one_step_errors(model, batch, num_observed, batch_size)}
+        stages.advance(len(dataset))
+        stages.stage("counterfactual")
+        diagnostics.update(_common_diagnostics(dataset, pred_mean, predict))
+    finally:
+        stages.close()
     source = RunSource(
         run=os.fspath(run_dir),
         checkpoint=path.name,
         epoch=int(stored["epoch"]),
         train_data=str(stored["data"]["path"]),
     )
-    variant = str(stored["train_config"]["variant"])
-    batch, num_observed = dataset.all(), dataset.meta.num_observed
-
-    def predict(states: np.ndarray, valid: np.ndarray) -> np.ndarray:
-        moved = replace(batch, states=torch.from_numpy(states), valid=torch.from_numpy(valid))
-        return predict_model(model, moved, num_observed, batch_size)[0]
-
-    diagnostics = {"one_step": one_step_errors(model, batch, num_observed, batch_size)}
-    diagnostics.update(_common_diagnostics(dataset, pred_mean, predict))
-    return _evaluation(dataset, variant, pred_mean, attention, source, diagnostics=diagnostics)
+    evaluation = _evaluation(
+        dataset, variant, pred_mean, attention, source, diagnostics=diagnostics
+    )
+    return replace(evaluation, scenario_mismatch=mismatch)
 
 
 def evaluate_baseline(
-    name: str, data_path: str | os.PathLike, split: str = "test", fit_split: str = "train"
+    name: str,
+    data_path: str | os.PathLike,
+    split: str = "test",
+    fit_split: str = "train",
+    progress: bool = False,
 ) -> Evaluation:
     """Score the baseline `name` (one of predictor.baselines.BASELINES) on a split; a ridge
-    baseline is first fitted on `fit_split` of the same file.
+    baseline is first fitted on `fit_split` of the same file (with `progress`, a bar on stderr
+    through the fit, the predictions and the diagnostics).
 
     Raises EvaluationError for an unknown name, an empty split or a ridge baseline that cannot
     be fitted, FormatError for a bad file.
@@ -322,22 +414,46 @@ def evaluate_baseline(
     if name not in BASELINES:
         raise EvaluationError(f"unknown baseline {name!r}; choose from {', '.join(BASELINES)}")
     dataset = _load_split(data_path, split)
-    fit = None
-    if name != "const_vel":
-        fit = dataset.data if fit_split == split else _load_split(data_path, fit_split).data
-    predict_data, details = fit_baseline(name, dataset.meta, fit)
     data = dataset.data
-    pred_mean = predict_data(data)
+    stages = _Stages(name, data.n, 2 + _counterfactual_passes(data.focal), progress)
+    try:
+        fit = None
+        if name != "const_vel":
+            stages.stage(f"fitting on the {fit_split} split")
+            fit = dataset.data if fit_split == split else _load_split(data_path, fit_split).data
+        predict_data, details = fit_baseline(name, dataset.meta, fit)
+        stages.advance(data.n)
+        stages.stage("predictions")
+        pred_mean = predict_data(data)
+        stages.advance(data.n)
+
+        def predict(states: np.ndarray, valid: np.ndarray) -> np.ndarray:
+            moved = predict_data(replace(data, states=states, valid=valid))
+            stages.advance(data.n)
+            return moved
+
+        stages.stage("counterfactual")
+        diagnostics = _common_diagnostics(dataset, pred_mean, predict)
+    finally:
+        stages.close()
     shape = (data.n, data.num_steps - 1, data.num_agents, data.num_agents)
     attention = np.full(shape, np.nan, dtype=np.float32)
     if details:
         details = {"fit_split": fit_split, **details}
-
-    def predict(states: np.ndarray, valid: np.ndarray) -> np.ndarray:
-        return predict_data(replace(data, states=states, valid=valid))
-
-    diagnostics = _common_diagnostics(dataset, pred_mean, predict)
     return _evaluation(dataset, name, pred_mean, attention, None, details, diagnostics)
+
+
+class ScenarioMismatchError(EvaluationError):
+    """The evaluated file is of another scenario than the run was trained on, while its dt,
+    horizons and agent count match: `evaluate_run(..., allow_scenario_mismatch=True)` evaluates
+    it anyway. `trained` and `evaluated` are the two scenario names."""
+
+    def __init__(self, message: str, trained: str, evaluated: str) -> None:
+        super().__init__(message)
+        self.trained, self.evaluated = trained, evaluated
+
+    def __reduce__(self):  # picklable across process pools
+        return (type(self), (str(self), self.trained, self.evaluated))
 
 
 def check_data_matches(
@@ -345,19 +461,36 @@ def check_data_matches(
     meta: DatasetMeta,
     checkpoint_path: str | os.PathLike,
     data_path: str | os.PathLike,
-) -> None:
-    """Raise EvaluationError unless `meta` has the scenario, dt and horizons the checkpoint's run
-    was trained on (`MATCHED_DATA`)."""
+    allow_scenario_mismatch: bool = False,
+    num_agents: int | None = None,
+) -> tuple[str, str] | None:
+    """Check that `meta` has the scenario, dt and horizons the checkpoint's run was trained on
+    (`MATCHED_DATA`); returns None, or with `allow_scenario_mismatch` the (trained, evaluated)
+    scenario names where only the scenario differs.
+
+    Another scenario is evaluated only when asked and when dt, the horizons and the agent count
+    (`num_agents` of the evaluated file, checked where the run recorded its own) match:
+    otherwise ScenarioMismatchError (a scenario alone differs, not asked) or EvaluationError.
+    """
     trained = checkpoint.get("data")
     if not isinstance(trained, dict) or any(key not in trained for key in MATCHED_DATA):
         raise CheckpointError(f"{checkpoint_path}: inconsistent checkpoint (no data description)")
-    differ = [key for key in MATCHED_DATA if not _same(trained[key], getattr(meta, key))]
-    if differ:
-        was = ", ".join(f"{key} {trained[key]!r}" for key in differ)
-        now = ", ".join(f"{key} {getattr(meta, key)!r}" for key in differ)
-        raise EvaluationError(
-            f"{checkpoint_path} was trained on data with {was}, but {data_path} has {now}"
-        )
+    now_values = {key: getattr(meta, key) for key in MATCHED_DATA}
+    differ = [key for key in MATCHED_DATA if not _same(trained[key], now_values[key])]
+    if differ == ["scenario"] and num_agents is not None and "num_agents" in trained:
+        # the model reads any number of agents of its own scenario, not of another's
+        now_values["num_agents"] = num_agents
+        differ += [] if trained["num_agents"] == num_agents else ["num_agents"]
+    if not differ:
+        return None
+    was = ", ".join(f"{key} {trained[key]!r}" for key in differ)
+    now = ", ".join(f"{key} {now_values[key]!r}" for key in differ)
+    message = f"{checkpoint_path} was trained on data with {was}, but {data_path} has {now}"
+    if differ != ["scenario"]:
+        raise EvaluationError(message)
+    if not allow_scenario_mismatch:
+        raise ScenarioMismatchError(message, str(trained["scenario"]), meta.scenario)
+    return str(trained["scenario"]), meta.scenario
 
 
 def _same(a: object, b: object) -> bool:

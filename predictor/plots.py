@@ -3,6 +3,12 @@
 Figures are built on `matplotlib.figure.Figure` with the Agg canvas, never through pyplot, so no
 global figure state is created or leaked. Main cars are coloured by role ("main_green" green,
 "main_brown" brown, other main roles from a fixed palette), every other role grey.
+
+Every figure explains itself: titles, axis labels with units, and a legend of everything drawn,
+placed outside the axes (below the figure), so it never covers the data. Sample trajectories
+come with each main agent's speed over time beside them, and a stop (speed under
+`STOP_SPEED_MPS`) is marked on both: a stop shows as dots piling up in the path, which the eye
+misses, but as a curve at zero in the speed (the Halting Car leader's stop is its case).
 """
 
 from __future__ import annotations
@@ -35,6 +41,9 @@ MIN_DPI, MAX_DPI = 10, 1200  # resolution accepted by save_figure [dots per inch
 MAX_PIXELS = 100_000_000  # largest canvas save_figure renders (~400 MB of RGBA)
 MAX_SAMPLES_PER_CASE = 20  # plot_samples rows
 _MIN_DOT, _MAX_DOT = 3.0, 40.0  # scatter marker areas [pt^2] at the first and last step
+STOP_SPEED_MPS = 0.5  # below this speed an agent counts as stopped (plot_samples marks it)
+STOP_COLOR = "#d62728"
+STOP_MARKER = dict(marker="8", s=110.0, facecolors="none", edgecolors=STOP_COLOR, linewidths=1.6)
 
 
 class PlotInputError(ValueError):
@@ -99,15 +108,20 @@ def _style_road_axes(ax: Axes, xlabel: bool = True, ylabel: bool = True) -> None
         ax.set_ylabel("y [m]")
 
 
-def _role_legend(fig: Figure, role_names: tuple[str, ...]) -> None:
-    handles = [
-        Line2D([], [], marker="o", linestyle="", color=role_color(name, i), label=name)
+def _role_handles(role_names: tuple[str, ...], what: str = "") -> list[Line2D]:
+    """Legend handles of the roles' dots ("main_green" + `what`, e.g. " (predicted)")."""
+    return [
+        Line2D([], [], marker="o", linestyle="", color=role_color(name, i), label=name + what)
         for i, name in enumerate(role_names)
     ]
+
+
+def legend_below(fig: Figure, handles: list, columns: int = 6) -> None:
+    """The figure's legend, below all axes (outside them: it never covers data)."""
     fig.legend(
         handles=handles,
         loc="outside lower center",
-        ncols=len(handles),
+        ncols=max(1, min(len(handles), columns)),
         fontsize="small",
         frameon=False,
     )
@@ -141,8 +155,56 @@ def save_figure(fig: Figure, path: str | os.PathLike, dpi: int = 120) -> None:
 # Sample trajectories from a dataset
 
 
+def speeds(xy: np.ndarray, valid: np.ndarray, dt: float) -> np.ndarray:
+    """Speed [m/s] of each agent at each step from consecutive positions: (T, N) from xy
+    (T, N, 2) and valid (T, N), NaN where the agent or its previous step is missing (step 0)."""
+    out = np.full(valid.shape, np.nan)
+    moved = np.linalg.norm(np.diff(xy.astype(np.float64), axis=0), axis=-1) / dt  # (T-1, N)
+    both = valid[1:] & valid[:-1]
+    out[1:][both] = moved[both]
+    return out
+
+
+def stop_starts(speed: np.ndarray) -> np.ndarray:
+    """Steps where a stop begins: speed (T,) under STOP_SPEED_MPS after a step that was not."""
+    stopped = np.nan_to_num(speed, nan=np.inf) < STOP_SPEED_MPS
+    return np.array([first for first, _ in _runs(stopped)], dtype=int)
+
+
+def _shown_agents(roles: np.ndarray, focal: np.ndarray, role_names: tuple[str, ...]) -> list:
+    """The agents whose speed plot_samples draws: the main cars, else the focal agents."""
+    main = [k for k, role in enumerate(roles) if _is_main(role_names[role])]
+    return main or [int(k) for k in np.flatnonzero(focal)][: len(_PALETTE)]
+
+
+def _draw_speeds(
+    path_ax: Axes, speed_ax: Axes, xy, valid, roles, focal, meta: DatasetMeta, last_row: bool
+) -> bool:
+    """Speed over time of the shown agents of one scene into `speed_ax`, with the stops marked
+    there and at their positions in `path_ax`; returns whether any stop was marked."""
+    speed = speeds(xy, valid, meta.dt)  # (T, N)
+    time = np.arange(speed.shape[0]) * meta.dt
+    stopped = False
+    for agent in _shown_agents(roles, focal, meta.role_names):
+        color = role_color(meta.role_names[roles[agent]], roles[agent])
+        speed_ax.plot(time, speed[:, agent], color=color, linewidth=1.4)
+        starts = stop_starts(speed[:, agent])
+        if len(starts):
+            stopped = True
+            speed_ax.scatter(time[starts], speed[starts, agent], zorder=4, **STOP_MARKER)
+            path_ax.scatter(xy[starts, agent, 0], xy[starts, agent, 1], zorder=5, **STOP_MARKER)
+    speed_ax.axvline((meta.num_observed - 1) * meta.dt, color="black", linestyle=":", linewidth=1)
+    speed_ax.set_ylim(bottom=0.0)
+    speed_ax.set_ylabel("speed [m/s]")
+    if last_row:
+        speed_ax.set_xlabel("time [s]")
+    return stopped
+
+
 def plot_samples(data: TrajectorySet, meta: DatasetMeta, num_per_case: int = 4) -> Figure:
-    """One column per case, the first `num_per_case` trajectories of that case as rows."""
+    """One column pair per case, the first `num_per_case` trajectories of that case as rows:
+    the paths (dots growing with time) and beside them the main agents' speed over time, with
+    every stop (speed under STOP_SPEED_MPS) marked in both."""
     if not 1 <= num_per_case <= MAX_SAMPLES_PER_CASE:
         raise PlotInputError(
             f"num_per_case must be in [1, {MAX_SAMPLES_PER_CASE}], got {num_per_case}"
@@ -151,15 +213,18 @@ def plot_samples(data: TrajectorySet, meta: DatasetMeta, num_per_case: int = 4) 
         raise PlotInputError("the split has no trajectories to plot")
     cases = list(meta.case_names)
     rows = num_per_case
-    fig = new_figure(6.0 * len(cases), 1.7 * rows + 0.8)
-    axes = fig.subplots(rows, len(cases), squeeze=False)
+    fig = new_figure(9.0 * len(cases), 1.9 * rows + 1.2)
+    grid = fig.add_gridspec(rows, 2 * len(cases), width_ratios=[2.0, 1.0] * len(cases))
     steps = np.arange(data.num_steps)
+    any_stop = False
     for column, case_name in enumerate(cases):
         picked = np.flatnonzero(data.case == column)[:rows]
         for row in range(rows):
-            ax = axes[row, column]
+            ax = fig.add_subplot(grid[row, 2 * column])
+            speed_ax = fig.add_subplot(grid[row, 2 * column + 1])
             if row >= len(picked):
                 ax.set_axis_off()
+                speed_ax.set_axis_off()
                 if row == 0:
                     ax.set_title(f"{case_name}: no trajectories")
                 continue
@@ -173,12 +238,41 @@ def plot_samples(data: TrajectorySet, meta: DatasetMeta, num_per_case: int = 4) 
                 meta.role_names,
                 data.num_steps,
             )
-            _style_road_axes(ax, xlabel=row == len(picked) - 1, ylabel=column == 0)
-            ax.set_title(f"{case_name}, seed {int(data.seed[i])}", fontsize="small")
+            last = row == len(picked) - 1
+            any_stop |= _draw_speeds(
+                ax,
+                speed_ax,
+                data.states[i, :, :, :2],
+                data.valid[i],
+                data.roles[i],
+                data.focal[i],
+                meta,
+                last,
+            )
+            _style_road_axes(ax, xlabel=last, ylabel=column == 0)
+            ax.set_title(f"{case_name}, seed {int(data.seed[i])}: paths", fontsize="small")
+            speed_ax.set_title("speed of the main agents", fontsize="small")
     fig.suptitle(
         f"{meta.scenario}: sample trajectories (dot size grows with time, dt = {meta.dt:g} s)"
     )
-    _role_legend(fig, meta.role_names)
+    handles = _role_handles(meta.role_names)
+    handles.append(
+        Line2D([], [], color="black", linestyle=":", label="last observed step (speed plots)")
+    )
+    if any_stop:
+        handles.append(
+            Line2D(
+                [],
+                [],
+                linestyle="",
+                marker="8",
+                markersize=9,
+                markerfacecolor="none",
+                markeredgecolor=STOP_COLOR,
+                label=f"stops (speed < {STOP_SPEED_MPS:g} m/s)",
+            )
+        )
+    legend_below(fig, handles)
     return fig
 
 
@@ -234,10 +328,15 @@ def plot_predictions(pred: Predictions, index: int) -> Figure:
     missing = f"; {not_finite} predicted points not finite, not drawn" if not_finite else ""
     ax.set_title(
         f"{_scene_name(pred, index)}: predicted means (dots, size grows "
-        f"with time) vs truth (grey lines); | = last observed step{missing}",
+        f"with time) vs truth (grey lines){missing}",
         fontsize="small",
     )
-    _role_legend(fig, pred.role_names)
+    handles = _role_handles(pred.role_names, " (predicted)")
+    handles += [
+        Line2D([], [], color=TRUE_COLOR, linewidth=1.0, label="true trajectories"),
+        Line2D([], [], color="black", marker="|", linestyle="", label="last observed position"),
+    ]
+    legend_below(fig, handles)
     return fig
 
 
@@ -286,7 +385,7 @@ def draw_attention(
             color="black",
             linestyle="--",
             linewidth=1.0,
-            label="ground truth",
+            label="true label (1: attends to it)",
             zorder=2,
         )
     roles = pred.roles[index]
@@ -339,5 +438,6 @@ def plot_attention(pred: Predictions, index: int, agent: int, target: int) -> Fi
         f"{_scene_name(pred, index)}: attention of agent {agent} ({agent_role}) on agent {target}",
         fontsize="small",
     )
-    ax.legend(fontsize="small", loc="upper left")
+    handles, _ = ax.get_legend_handles_labels()
+    legend_below(fig, handles, columns=4)
     return fig

@@ -86,6 +86,11 @@ PRESETS["crowd"] = (
     {**PRESETS["agent"][1], "batch_size": 16, "epochs": 20},
 )
 DEFAULT_PRESET = "paper"  # the preset make_configs and tools/train.py use unless told
+# the ModelConfig and TrainConfig fields some preset sets: where the presets differ
+PRESET_FIELDS: tuple[tuple[str, ...], tuple[str, ...]] = (
+    tuple(sorted({name for model, _ in PRESETS.values() for name in model})),
+    tuple(sorted({name for _, train in PRESETS.values() for name in train})),
+)
 
 
 def make_configs(

@@ -22,13 +22,25 @@ class RunError(ValueError):
     """A run directory or data file cannot be used as asked; the message is one line."""
 
 
+class RunWriteError(RunError):
+    """A file of the run could not be written (or moved, removed...); `errno` is the OSError's
+    (None if it had none): a path refused for permission differs from a full disk."""
+
+    def __init__(self, message: str, errno: int | None = None) -> None:
+        super().__init__(message)
+        self.errno = errno
+
+    def __reduce__(self):  # picklable across process pools
+        return (type(self), (str(self), self.errno))
+
+
 @contextlib.contextmanager
 def writing(path: Path, action: str = "write") -> Iterator[None]:
-    """Turn an OSError of the block into a one-line RunError naming `path`."""
+    """Turn an OSError of the block into a one-line RunWriteError naming `path`."""
     try:
         yield
     except OSError as err:
-        raise RunError(f"cannot {action} {path}: {err.strerror or err}") from None
+        raise RunWriteError(f"cannot {action} {path}: {err.strerror or err}", err.errno) from None
 
 
 def atomic_save(obj: object, path: Path) -> None:
@@ -97,6 +109,7 @@ class Claim:
     out_dir: Path
     created: list[Path] = field(default_factory=list)
     set_aside: list[Path] = field(default_factory=list)  # the old files' own paths
+    restored: bool = False  # `undo` put an old run's files back
 
     def undo(self) -> None:
         """A fresh run that never wrote last.pt failed: remove its files and the directories it
@@ -107,6 +120,7 @@ class Claim:
         for path in self.set_aside:
             with contextlib.suppress(OSError):
                 os.replace(_replaced(path), path)
+                self.restored = True
         for directory in reversed(self.created):
             with contextlib.suppress(OSError):
                 directory.rmdir()

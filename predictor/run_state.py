@@ -3,15 +3,23 @@ how a fresh run's state is built (seeded) and how an interrupted one is restored
 
 `last.pt` stores the optimizer state, the epoch, the best validation score and the torch,
 numpy, python and loader RNG states, so a resumed run reproduces the uninterrupted one bit for
-bit (same thread count assumed). A resumed run may change only `RESUME_MAY_CHANGE`.
+bit (same thread count assumed). A resumed run may change only `RESUME_MAY_CHANGE`; any other
+setting asked for must equal the stored one (`ResumeMismatch` names both values).
+
+Every checkpoint also records the run's preset (`predictor.presets.PRESETS`; None when it was
+built from bare configs) and whether the run is finished (all its epochs done; written with the
+last epoch's checkpoint, atomically). Runs written before these two fields existed still load
+(`run_status`): their preset counts as not recorded, so a `--preset` asked for on resume is
+checked field by field against what that preset sets (`preset_mismatch`), and they count as
+finished when their stored epoch reached their configured epochs.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -19,10 +27,11 @@ import torch
 
 from predictor import __version__
 from predictor.compiled_step import compile_graph_step, compiler_missing
-from predictor.config import ModelConfig, TrainConfig
+from predictor.config import ModelConfig, TrainConfig, resolve_roles
 from predictor.data import Batch, TrajectoryDataset, make_loader
 from predictor.evaluation import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, read_checkpoint
 from predictor.model import SmoothAttentionPredictor
+from predictor.presets import PRESET_FIELDS, make_configs
 from predictor.random_state import rng_state, seed_everything, set_rng_state
 from predictor.run_files import RunError, atomic_write_text, check_out_dir, writing
 from predictor.stored_config import (
@@ -34,6 +43,71 @@ from predictor.stored_config import (
 )
 
 RESUME_MAY_CHANGE = ("epochs", "threads", "eval_every")  # TrainConfig fields; nothing else may
+
+
+class ResumeMismatch(RunError):
+    """A setting asked for on resume differs from the stored run's: `name` (a config field, or
+    "preset"), the `stored` and the `asked` value; `preset` is the preset whose value `asked`
+    is, when the setting was not asked for by itself (a run that did not record its preset)."""
+
+    def __init__(self, name: str, stored: Any, asked: Any, preset: str | None = None) -> None:
+        self.name, self.stored, self.asked, self.preset = name, stored, asked, preset
+        via = f" (set by preset {preset!r})" if preset is not None else ""
+        super().__init__(
+            f"a resumed run keeps its stored configuration: {name} is {stored!r} there, "
+            f"{asked!r} asked{via} (only {', '.join(RESUME_MAY_CHANGE)} may change)"
+        )
+
+    def __reduce__(self):  # picklable across process pools
+        return (type(self), (self.name, self.stored, self.asked, self.preset))
+
+
+@dataclass(frozen=True)
+class RunStatus:
+    """Where a run directory's `last.pt` stands."""
+
+    out_dir: Path
+    epoch: int  # completed epochs
+    epochs: int  # the epochs the run was configured for
+    finished: bool  # all of them done
+    preset: str | None  # None: not recorded (bare configs, or a run from before presets were)
+    best_epoch: int
+    best_score: float | None  # validation ADE [m] of best.pt (main agents)
+
+    def summary(self) -> str:
+        """One line: the run is finished, its epochs and best validation score."""
+        best = "n/a" if self.best_score is None else f"{self.best_score:.3f} m"
+        return (
+            f"run {self.out_dir} is finished: {self.epoch} of {self.epochs} epochs trained, best "
+            f"val ADE (main agents) {best} at epoch {self.best_epoch}; nothing to resume "
+            "(a larger --epochs trains it further)"
+        )
+
+
+def status_of(checkpoint: Mapping[str, Any], out_dir: str | os.PathLike) -> RunStatus:
+    """The `RunStatus` of a `last.pt` dict. A checkpoint without the `finished` field (written
+    before it existed) is finished when its epoch reached its configured epochs; one without
+    `preset` has none recorded."""
+    epoch, epochs = int(checkpoint["epoch"]), int(checkpoint["train_config"]["epochs"])
+    finished = checkpoint.get("finished")
+    best = checkpoint.get("best_score")
+    return RunStatus(
+        out_dir=Path(out_dir),
+        epoch=epoch,
+        epochs=epochs,
+        finished=bool(epoch >= epochs if finished is None else finished),
+        preset=checkpoint.get("preset"),
+        best_epoch=int(checkpoint.get("best_epoch", 0)),
+        best_score=None if best is None else float(best),
+    )
+
+
+def run_status(out_dir: str | os.PathLike) -> RunStatus:
+    """The status of the run in `out_dir` (RunError if there is nothing to resume,
+    CheckpointError if its last.pt cannot be read)."""
+    out = Path(out_dir)
+    check_out_dir(out, resume=True, overwrite=False)
+    return status_of(read_checkpoint(out / "last.pt"), out)
 
 
 @dataclass
@@ -53,9 +127,15 @@ class RunState:
 
 
 def checkpoint_dict(
-    state: RunState, model_cfg: ModelConfig, train_cfg: TrainConfig, data: dict, full: bool
+    state: RunState,
+    model_cfg: ModelConfig,
+    train_cfg: TrainConfig,
+    data: dict,
+    full: bool,
+    preset: str | None = None,
 ) -> dict:
-    """Checkpoint contents (plain types and tensors only)."""
+    """Checkpoint contents (plain types and tensors only); `finished` says whether the state's
+    epoch reached the configured epochs."""
     out = {
         "format": CHECKPOINT_FORMAT,
         "version": CHECKPOINT_VERSION,
@@ -67,6 +147,8 @@ def checkpoint_dict(
         "epoch": state.epoch,
         "best_score": state.best_score,
         "best_epoch": state.best_epoch,
+        "preset": preset,
+        "finished": state.epoch >= train_cfg.epochs,
     }
     if full:
         out["optimizer_state"] = state.optimizer.state_dict()
@@ -128,14 +210,19 @@ def restore_state(state: RunState, checkpoint: dict) -> None:
 
 
 def resume_configs(
-    out_dir: str | os.PathLike, changes: Mapping[str, Any] | None = None
+    out_dir: str | os.PathLike,
+    changes: Mapping[str, Any] | None = None,
+    preset: str | None = None,
 ) -> tuple[ModelConfig, TrainConfig]:
     """The configs to resume the run in `out_dir` with: the stored ones (from last.pt) with
     `changes` applied, built through the validating constructors.
 
     `changes` may hold any ModelConfig or TrainConfig field; those in RESUME_MAY_CHANGE are
-    applied, any other must equal the stored value. Raises RunError if there is nothing to
-    resume or a change is forbidden or unknown, ValueError for an out-of-range value.
+    applied, any other must equal the stored value. `preset`, if given, must be the stored
+    run's; a run that did not record its preset must hold what that preset (with `changes`)
+    sets. Raises ResumeMismatch (a RunError) naming the stored and the asked value, RunError
+    if there is nothing to resume, a setting is unknown or `epochs` is fewer than the run has
+    done, ValueError for an out-of-range value.
     """
     out = Path(out_dir)
     check_out_dir(out, resume=True, overwrite=False)
@@ -146,19 +233,64 @@ def resume_configs(
         **ADDED_TRAIN_FIELDS,
         **checkpoint["train_config"],
     }
-    for name, value in (changes or {}).items():
+    changes = dict(changes or {})
+    for name, value in changes.items():
         if name not in stored:
             raise RunError(f"unknown setting {name!r}")
         if name not in RESUME_MAY_CHANGE and value != stored[name]:
-            raise RunError(
-                f"a resumed run keeps its stored configuration: {name} is {stored[name]!r} there "
-                f"(only {', '.join(RESUME_MAY_CHANGE)} may change)"
-            )
-    allowed = {k: v for k, v in (changes or {}).items() if k in RESUME_MAY_CHANGE}
-    return (
+            raise ResumeMismatch(name, stored[name], value)
+    if preset is not None:
+        recorded = checkpoint.get("preset")
+        if recorded is not None and recorded != preset:
+            raise ResumeMismatch("preset", recorded, preset)
+        if recorded is None:
+            roles = checkpoint.get("data", {}).get("role_names", ())
+            mismatch = preset_mismatch(stored, preset, changes, roles)
+            if mismatch is not None:
+                raise mismatch
+    allowed = {k: v for k, v in changes.items() if k in RESUME_MAY_CHANGE}
+    configs = (
         model_config_from_dict(checkpoint["model_config"]),
         train_config_from_dict({**checkpoint["train_config"], **allowed}),
     )
+    done = int(checkpoint["epoch"])
+    if configs[1].epochs < done:
+        raise RunError(
+            f"{out} has trained {done} epochs already; epochs {configs[1].epochs} asks for "
+            "fewer (a run cannot be shortened)"
+        )
+    return configs
+
+
+def preset_mismatch(
+    stored: Mapping[str, Any],
+    preset: str,
+    changes: Mapping[str, Any],
+    role_names: Sequence[str] = (),
+) -> ResumeMismatch | None:
+    """For a run that did not record its preset: the first field among those presets set
+    (`PRESET_FIELDS`) where the stored config differs from what `preset`, with the stored
+    variant and `changes`, gives for training data of `role_names` (None if none differs, or
+    the configs cannot be built: the fields asked for are checked one by one anyway)."""
+    model_fields, train_fields = PRESET_FIELDS
+    model_names = {item.name for item in fields(ModelConfig)} - {"attention_mode"}
+    train_names = {item.name for item in fields(TrainConfig)} - {"variant", "sequence_loss"}
+    model_changes = {k: v for k, v in changes.items() if k in model_names}
+    train_changes = {k: v for k, v in changes.items() if k in train_names}
+    try:
+        model_cfg, train_cfg = make_configs(
+            str(stored["variant"]), model_changes, preset=preset, **train_changes
+        )
+        model_cfg = resolve_roles(model_cfg, tuple(role_names))
+    except ValueError:
+        return None  # the asked settings are checked against the stored ones field by field
+    expected = {**config_to_dict(model_cfg), **config_to_dict(train_cfg)}
+    for name in (*model_fields, *train_fields):
+        if name in RESUME_MAY_CHANGE or name not in expected:
+            continue
+        if expected[name] != stored.get(name, expected[name]):
+            return ResumeMismatch(name, stored[name], expected[name], preset=preset)
+    return None
 
 
 def check_resume(
@@ -173,7 +305,12 @@ def check_resume(
         raise RunError(f"a resumed run cannot change {', '.join(changed)} of the stored run")
     keys = [k for k in data if k != "path"]
     if any(checkpoint["data"].get(k) != data[k] for k in keys):
-        raise RunError(f"a resumed run needs its data file ({checkpoint['data']['path']})")
+        trained = checkpoint["data"]["path"]
+        if os.path.abspath(trained) == data["path"]:
+            raise RunError(f"a resumed run needs the data it was trained on: {trained} changed")
+        raise RunError(
+            f"a resumed run needs its data file: it was trained on {trained}, not {data['path']}"
+        )
 
 
 def rewrite_metrics(path: Path, last_epoch: int) -> None:

@@ -16,6 +16,14 @@ checked before the run directory is touched; a fresh run that fails before its f
 checkpoint and put back if it fails before. A resumed run may change only
 `run_state.RESUME_MAY_CHANGE`. Write failures (read-only directory, full disk) are a RunError
 naming the file (`predictor.run_files`).
+
+Interrupts: Ctrl-C (KeyboardInterrupt) during `train` is raised again as `TrainingInterrupted`,
+a KeyboardInterrupt that says what the run directory holds afterwards (its `outcome`): nothing
+changed, nothing kept, the previous run put back (an overwrite stopped before its first
+checkpoint), or a run that `resume=True` continues.
+
+Each checkpoint records the run's preset and whether it is finished (`predictor.run_state`);
+the last epoch writes best.pt before last.pt, so a last.pt that says finished has its best.pt.
 """
 
 from __future__ import annotations
@@ -24,6 +32,7 @@ import json
 import math
 import os
 import random
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -56,6 +65,7 @@ from predictor.run_files import (
     writing,
 )
 from predictor.run_state import (
+    ResumeMismatch,
     RunState,
     build_state,
     check_resume,
@@ -190,6 +200,24 @@ def describe_data(path: str, dataset: TrajectoryDataset, val_count: int) -> dict
     }
 
 
+# --------------------------------------------------------------------------- interrupts
+# what an interrupted `train` left in its run directory
+UNTOUCHED = "untouched"  # stopped before the directory was changed
+NOTHING_KEPT = "nothing kept"  # a new run stopped before its first checkpoint, removed
+RESTORED = "restored"  # an overwrite stopped before its first checkpoint: the old run put back
+RESUMABLE = "resumable"  # a run with a checkpoint: resume=True continues it
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C during `train`: `outcome` (one of UNTOUCHED, NOTHING_KEPT, RESTORED, RESUMABLE)
+    says what `out_dir` holds now, `epoch` the epochs its run has completed (RESUMABLE), of
+    `epochs`."""
+
+    def __init__(self, out_dir: str, outcome: str, epoch: int = 0, epochs: int = 0) -> None:
+        super().__init__(out_dir, outcome, epoch, epochs)
+        self.out_dir, self.outcome, self.epoch, self.epochs = out_dir, outcome, epoch, epochs
+
+
 # --------------------------------------------------------------------------- the loop
 def run_epoch(
     state: RunState,
@@ -212,8 +240,8 @@ def run_epoch(
         for name, value in terms.items():
             sums[name] = sums.get(name, 0.0) + value
         steps += 1
-        bar.update(1)
         bar.set_postfix(epoch=state.epoch + 1, loss=f"{terms['loss']:.3f}", refresh=False)
+        bar.update(1)
     return {name: total / max(steps, 1) for name, total in sums.items()}
 
 
@@ -259,17 +287,42 @@ def train(
     overwrite: bool = False,
     progress: bool = True,
     step_callback: Callable[[int], None] | None = None,
+    preset: str | None = None,
 ) -> TrainResult:
     """Train (or resume) a run in `out_dir`; see the module docstring for the files written.
 
-    Raises RunError for an unusable run directory (or a failed write), FormatError for a bad
-    data file, CheckpointError for an unreadable last.pt. A fresh run that fails before its
-    first checkpoint leaves nothing behind. `step_callback(global_step)` is called before every
-    optimiser step (for tests).
+    `preset` is recorded in the checkpoints (the name the configs were made from, if any); a
+    resumed run keeps the recorded one (ResumeMismatch if another is given). Raises RunError
+    for an unusable run directory (or a failed write), FormatError for a bad data file,
+    CheckpointError for an unreadable last.pt, TrainingInterrupted on Ctrl-C. A fresh run that
+    fails before its first checkpoint leaves nothing behind. `step_callback(global_step)` is
+    called before every optimiser step (for tests).
     """
-    started = time.perf_counter()
     out = Path(out_dir)
     check_out_dir(out, resume, overwrite)
+    try:
+        return _train(
+            data_path, model_cfg, train_cfg, out, resume, overwrite, progress, step_callback, preset
+        )
+    except TrainingInterrupted:
+        raise
+    except KeyboardInterrupt as err:  # before the directory was claimed: nothing changed
+        outcome = _interruption(out, resume, None)
+        raise TrainingInterrupted(str(out), outcome, *outcome_epochs(out, train_cfg)) from err
+
+
+def _train(
+    data_path: str | os.PathLike,
+    model_cfg: ModelConfig,
+    train_cfg: TrainConfig,
+    out: Path,
+    resume: bool,
+    overwrite: bool,
+    progress: bool,
+    step_callback: Callable[[int], None] | None,
+    preset: str | None,
+) -> TrainResult:
+    started = time.perf_counter()
     torch.set_num_threads(train_cfg.threads)
     train_set, val_set, data = _load_splits(data_path)
     try:
@@ -277,10 +330,21 @@ def train(
     except ValueError as err:
         raise RunError(f"{data_path}: {err}") from None
     check_labels(model_cfg, train_set.meta, data_path)
+    if progress:  # seconds before the bar: the optimiser's first use imports much of torch
+        print(
+            f"train {train_cfg.variant}: building the model and optimiser on "
+            f"{len(train_set)} training scenes",
+            file=sys.stderr,
+            flush=True,
+        )
     state = build_state(model_cfg, train_cfg, train_set)
     if resume:
         checkpoint = read_checkpoint(out / "last.pt")
         check_resume(checkpoint, model_cfg, train_cfg, data)
+        recorded = checkpoint.get("preset")
+        if preset is not None and recorded is not None and preset != recorded:
+            raise ResumeMismatch("preset", recorded, preset)
+        preset = preset if recorded is None else recorded
         try:
             restore_state(state, checkpoint)
         except (KeyError, RuntimeError, TypeError, ValueError) as err:
@@ -292,13 +356,16 @@ def train(
         claim = claim_out_dir(out, overwrite)
     try:
         final_loss = _train_epochs(
-            state, model_cfg, train_cfg, data, val_set, out, progress, step_callback
+            state, model_cfg, train_cfg, data, val_set, out, progress, step_callback, preset
         )
-    except BaseException:
+    except BaseException as err:
         if not resume and not (out / "last.pt").exists():
             claim.undo()
         else:
             claim.commit()
+        if isinstance(err, KeyboardInterrupt):
+            outcome = _interruption(out, resume, claim)
+            raise TrainingInterrupted(str(out), outcome, *outcome_epochs(out, train_cfg)) from err
         raise
     claim.commit()
     return TrainResult(
@@ -320,6 +387,7 @@ def _train_epochs(
     out: Path,
     progress: bool,
     step_callback: Callable[[int], None] | None,
+    preset: str | None = None,
 ) -> float | None:
     """Write config.json, run the remaining epochs with their checkpoints and metrics lines;
     returns the last epoch's mean training loss (None if no epoch was left to run)."""
@@ -327,6 +395,7 @@ def _train_epochs(
         "model": config_to_dict(model_cfg),
         "train": config_to_dict(train_cfg),
         "data": data,
+        "preset": preset,
         "package_version": __version__,
     }
     atomic_write_text(json.dumps(run_config, indent=2) + "\n", out / "config.json")
@@ -347,14 +416,39 @@ def _train_epochs(
             final_loss = record["train"]["loss"]
             with writing(out / "metrics.jsonl"), open(out / "metrics.jsonl", "a") as stream:
                 stream.write(json.dumps(json_safe(record), allow_nan=False) + "\n")
-            if record["best"]:
-                atomic_save(
-                    checkpoint_dict(state, model_cfg, train_cfg, data, False), out / "best.pt"
-                )
-            atomic_save(checkpoint_dict(state, model_cfg, train_cfg, data, True), out / "last.pt")
-    if not (out / "best.pt").exists():  # no epoch had a validation score
-        atomic_save(checkpoint_dict(state, model_cfg, train_cfg, data, False), out / "best.pt")
+            # at the last epoch best.pt exists before last.pt says the run is finished (the
+            # last epoch's weights when no epoch had a validation score)
+            no_best = epoch == train_cfg.epochs and not (out / "best.pt").exists()
+            if record["best"] or no_best:
+                best = checkpoint_dict(state, model_cfg, train_cfg, data, False, preset)
+                atomic_save(best, out / "best.pt")
+            last = checkpoint_dict(state, model_cfg, train_cfg, data, True, preset)
+            atomic_save(last, out / "last.pt")
+    if not (out / "best.pt").exists():  # no epoch left to run, none with a validation score
+        atomic_save(
+            checkpoint_dict(state, model_cfg, train_cfg, data, False, preset), out / "best.pt"
+        )
     return final_loss
+
+
+def _interruption(out: Path, resume: bool, claim: Claim | None) -> str:
+    """What an interrupted `train` left in `out` (after its claim was undone or committed)."""
+    if resume:
+        return RESUMABLE
+    if claim is None:
+        return UNTOUCHED
+    if claim.restored:  # before the new run's first checkpoint: last.pt is the old run's
+        return RESTORED
+    return RESUMABLE if (out / "last.pt").exists() else NOTHING_KEPT
+
+
+def outcome_epochs(out: Path, train_cfg: TrainConfig) -> tuple[int, int]:
+    """(epochs completed by the run in `out` as its last.pt says, 0 if it has none or it cannot
+    be read; the epochs `train_cfg` asks for)."""
+    try:
+        return int(read_checkpoint(out / "last.pt")["epoch"]), train_cfg.epochs
+    except (CheckpointError, KeyError, TypeError, ValueError):
+        return 0, train_cfg.epochs
 
 
 def _one_epoch(
@@ -374,6 +468,7 @@ def _one_epoch(
     # nor does the prior of refit_on_prior, so the fit at the first epoch (kept in the
     # checkpoint) holds for every later one
     if state.refit_scenes is not None and (changes or epoch == 1):
+        bar.set_postfix_str(f"epoch {epoch}: refitting the highway", refresh=True)
         scenes = state.refit_scenes
         state.model.refit_attended(
             scenes.positions, scenes.valid, num_observed, scenes.attention, scenes.roles
@@ -383,6 +478,7 @@ def _one_epoch(
     val, best = None, False
     due = epoch % config.eval_every == 0 or epoch == config.epochs
     if val_set is not None and due:
+        bar.set_postfix_str(f"epoch {epoch}: validating", refresh=True)
         val = validation_scores(state.model, val_set)
         current = selection_score(val)
         if current is not None and (state.best_score is None or current < state.best_score):

@@ -59,6 +59,7 @@ def test_demo_writes_every_output_and_reports_both_predictors(tmp_path):
     for name in ("episode.png", "samples.png", "predictions.png", "attention.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (out / "episode.gif").read_bytes()[:6] == b"GIF89a"
+    assert_frames_explain_themselves(out / "episode.gif")
 
     data = out / "double_merge_v1.h5"
     meta, test = read_meta(data), read_split(data, "test")
@@ -78,3 +79,21 @@ def test_demo_writes_every_output_and_reports_both_predictors(tmp_path):
     ours = json.loads((out / "run_ours" / "eval.json").read_text())
     assert np.isfinite(ours["main_agents"]["overall"]["ade"])
     assert f"{ade:.2f} m (constant velocity)" in last
+
+
+def assert_frames_explain_themselves(gif) -> None:
+    """Every frame of the demo's GIF has a title strip with text above the road and a legend
+    strip below it with a swatch of each car colour (to the GIF palette's rounding)."""
+    import imageio.v3 as iio
+
+    from carlo_lite.render import ROLE_COLORS
+    from pipeline.frames import STRIP_COLOR, STRIP_PX
+
+    frames = iio.imread(gif)
+    assert frames.shape[1:] == (160 + 2 * STRIP_PX, 640, 3)  # the demo renders 640 x 160
+    for frame in frames:
+        title, legend = frame[:STRIP_PX].astype(int), frame[-STRIP_PX:].astype(int)
+        assert (np.abs(title - STRIP_COLOR).sum(axis=-1) > 60).sum() > 100  # the title's text
+        for color in ROLE_COLORS.values():
+            near = np.abs(legend - np.array(color)).max(axis=-1) <= 2  # the strip is 248
+            assert near.sum() >= 50, color

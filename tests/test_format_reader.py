@@ -149,7 +149,7 @@ def test_inspect_tool_accepts_valid_file(dataset_file: Path) -> None:
 
 
 @pytest.mark.parametrize("damage", ["truncate", "foreign", "schema"])
-def test_inspect_tool_rejects_invalid_file_with_exit_1(dataset_file: Path, damage: str) -> None:
+def test_inspect_tool_rejects_invalid_file_with_exit_2(dataset_file: Path, damage: str) -> None:
     if damage == "truncate":
         dataset_file.write_bytes(dataset_file.read_bytes()[:3000])
     elif damage == "foreign":
@@ -157,7 +157,7 @@ def test_inspect_tool_rejects_invalid_file_with_exit_1(dataset_file: Path, damag
     else:
         _edit(dataset_file, lambda f: f.attrs.__setitem__("schema_version", 7))
     result = _inspect(dataset_file)
-    assert result.returncode == 1
+    assert result.returncode == 2  # an input error, as in every tool that reads the file
     assert result.stdout == "" and "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"error: {dataset_file}: ")

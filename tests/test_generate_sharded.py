@@ -200,7 +200,7 @@ def test_missing_shard_is_one_line_from_the_tools(sharded_pair, tmp_path):
     shutil.copytree(index.parent, copy)
     (copy / "val-00000.h5").unlink()
     inspected = run_tool("inspect_data.py", copy / "index.h5")
-    assert inspected.returncode == 1 and inspected.stdout == ""
+    assert inspected.returncode == 2 and inspected.stdout == ""
     assert inspected.stderr.splitlines() == [
         f"error: {copy / 'index.h5'}: missing shard val-00000.h5 (expected beside the index)"
     ]

@@ -6,11 +6,13 @@ from __future__ import annotations
 
 import errno
 import importlib.util
+import math
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import REPO_ROOT, load_tool, run_tool, tool_env
 
@@ -73,7 +75,7 @@ def test_play_records_a_gif_and_refuses_to_overwrite_it(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     assert f"wrote {video} (61 frames)" in done.stdout
     frames = iio.imread(video)
-    assert frames.shape == (61, 200, 800, 3)
+    assert frames.shape == (61, 244, 800, 3)  # the road (200 px), a title and a legend strip
     recorded = video.read_bytes()
     again = run_play("--scenario", "halting_car_v0", "--case", "go", "--record", str(video))
     assert_one_error_line(again, f"output {video} already exists; pass --overwrite")
@@ -83,7 +85,7 @@ def test_play_records_a_gif_and_refuses_to_overwrite_it(tmp_path: Path) -> None:
         "--scenario", "halting_car_v0", "--case", "go", "--record", str(video), "--overwrite"
     )
     assert replaced.returncode == 0, replaced.stderr
-    assert video.read_bytes() != recorded and iio.imread(video).shape == (61, 200, 800, 3)
+    assert video.read_bytes() != recorded and iio.imread(video).shape == (61, 244, 800, 3)
     assert sorted(path.name for path in tmp_path.iterdir()) == ["stop.gif"]
 
 
@@ -223,4 +225,120 @@ def test_play_records_an_mp4(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     assert "WARNING" not in done.stderr  # frames padded to H.264 macro blocks, not resized
     frames = iio.imread(video)
-    assert frames.shape == (61, 208, 800, 3)
+    assert frames.shape == (61, 256, 800, 3)  # 244 px of road, title and legend, padded to 16
+
+
+# ---- what the frames say -----------------------------------------------------------------------
+def _steered_env_module(real, removed: dict):
+    """`scenarios.env_module` whose environments steer car_0 hard left at full throttle (so it
+    leaves the episode within seconds) and note in `removed` each agent's removal step and
+    step info, as the environment reports them."""
+
+    def env_module(name):
+        module = real(name)
+
+        class Steered:
+            @staticmethod
+            def parallel_env(**kwargs):
+                env = module.parallel_env(**kwargs)
+                expert, step, count = env.unwrapped.expert_actions, env.step, [0]
+
+                def actions():
+                    chosen = expert()
+                    if "car_0" in chosen:
+                        chosen["car_0"] = np.array([0.3, 2.0], dtype=np.float32)
+                    return chosen
+
+                def stepping(chosen):
+                    result = step(chosen)
+                    count[0] += 1
+                    for agent, done in result[2].items():
+                        if done:
+                            removed.setdefault(agent, (count[0], result[4][agent]))
+                    return result
+
+                env.unwrapped.expert_actions, env.step = actions, stepping
+                return env
+
+        return Steered
+
+    return env_module
+
+
+def test_a_car_that_leaves_is_named_on_screen_with_the_reason(play, tmp_path, capsys, monkeypatch):
+    from pipeline.frames import NOTICE_COLOR, NOTICE_SECONDS
+
+    removed: dict = {}
+    monkeypatch.setattr(play, "env_module", _steered_env_module(play.env_module, removed))
+    shown, real_annotate = [], play.annotate
+
+    def annotate(frame, title, legend, notices=()):
+        shown.append((list(notices), real_annotate(frame, title, legend, notices)))
+        return shown[-1][1]
+
+    monkeypatch.setattr(play, "annotate", annotate)
+    video = tmp_path / "crash.gif"
+    play.main(["--scenario", "halting_car_v3", "--case", "stop", "--record", str(video)])
+    assert "car_0" in removed
+    reasons = {
+        agent: " and ".join(
+            text
+            for key, text in (("collided", "collided"), ("off_road", "left the road"))
+            if info[key]
+        )
+        for agent, (_, info) in removed.items()
+    }
+    out = capsys.readouterr().out
+    assert f"car_0: {reasons['car_0']}" in out
+    what = {"main_green": "follower (green)", "main_brown": "leader, may stop (brown)"}
+    duration = math.ceil(NOTICE_SECONDS / 0.3)  # Halting Car records every 0.3 s
+    assert len(shown) == 61  # the frame before the first step, then one a step
+    for step, (notices, frame) in enumerate(shown):
+        expected = [
+            f"{agent}, {what.get(info['role'], 'another car')}, left the episode: {reasons[agent]}"
+            for agent, (at, info) in sorted(removed.items())
+            if at <= step < at + duration
+        ]
+        assert notices == expected, step
+        red = (frame[22:122, :] == NOTICE_COLOR).all(axis=-1).sum()  # the road's top
+        assert (red > 0) == bool(expected), step
+    assert any(notices for notices, _ in shown) and not shown[0][0]
+    assert iio_frames(video) == len(shown)
+
+
+def iio_frames(path: Path) -> int:
+    import imageio.v3 as iio
+
+    return len(iio.imread(path))
+
+
+def test_every_frame_has_a_title_and_a_legend_of_the_car_colours(play, tmp_path, capsys):
+    from carlo_lite.render import ROLE_COLORS
+    from pipeline.frames import STRIP_COLOR, STRIP_PX
+
+    args = play.parse_args(["--scenario", "double_merge_v1", "--record", str(tmp_path / "a.gif")])
+    _, frames = play.play(args, "major")
+    assert len(frames) == 61
+    for frame in (frames[0], frames[-1]):
+        assert frame.shape == (200 + 2 * STRIP_PX, 800, 3)
+        title, legend = frame[:STRIP_PX], frame[-STRIP_PX:]
+        assert (title != STRIP_COLOR).any(axis=-1).sum() > 100  # the title's text
+        for color in ROLE_COLORS.values():  # a swatch of every car colour
+            assert (legend == color).all(axis=-1).sum() >= 50, color
+    assert not np.array_equal(frames[0][:STRIP_PX], frames[-1][:STRIP_PX])  # the time moved
+
+
+def test_the_removal_reason_comes_from_the_step_info():
+    from pipeline.frames import removal_notice, removal_reason
+
+    assert removal_reason({"collided": True, "off_road": False}) == "collided"
+    assert removal_reason({"collided": False, "off_road": True}) == "left the road"
+    assert removal_reason({"collided": True, "off_road": True}) == "collided and left the road"
+    info = {"role": "main_brown", "collided": False, "off_road": True}
+    assert removal_notice("halting_car_v2", "car_1", info) == (
+        "car_1, leader, may stop (brown), left the episode: left the road"
+    )
+    info = {"role": "distractor", "collided": True, "off_road": False}
+    assert removal_notice("double_merge", "car_9", info) == (
+        "car_9, another car, left the episode: collided"
+    )

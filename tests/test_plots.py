@@ -76,13 +76,137 @@ def test_samples_dots_grow_with_time() -> None:
     meta = make_meta()
     data = make_trajectory_set(5, meta.num_steps)
     fig = plot_samples(data, meta, num_per_case=2)
-    axes = [ax for ax in fig.axes if ax.collections]
-    assert len(axes) == 4  # 2 cases x 2 scenes
+    axes = [ax for ax in fig.axes if ax.get_xlabel() != "time [s]" and ax.collections]
+    assert len(axes) == 4  # 2 cases x 2 scenes (and beside each its speed plot)
     green = [c for c in axes[0].collections if to_hex(c.get_facecolor()[0]) == "#2ca02c"]
     assert len(green) == 1
     sizes = green[0].get_sizes()  # agent 0 is valid at every step: sizes from 3 to 40 pt^2
     np.testing.assert_allclose(sizes, np.linspace(3.0, 40.0, meta.num_steps))
     np.testing.assert_allclose(green[0].get_offsets(), data.states[0, :, 0, :2])
+
+
+def assert_legends_clear_of_the_axes(fig) -> None:
+    """The figure has a legend, every legend lies inside the figure, and none overlaps an axes
+    box (the plotting area, which holds all the data)."""
+    from matplotlib.transforms import Bbox
+
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    legends = [*fig.legends, *(ax.get_legend() for ax in fig.axes if ax.get_legend())]
+    assert legends and all(legend.get_texts() for legend in legends)
+    boxes = [ax.get_window_extent(renderer) for ax in fig.axes if ax.axison]
+    assert boxes
+    for legend in legends:
+        box = legend.get_window_extent(renderer)
+        assert fig.bbox.padded(1.0).contains(box.x0, box.y0)
+        assert fig.bbox.padded(1.0).contains(box.x1, box.y1)
+        for axes_box in boxes:
+            overlap = Bbox.intersection(box, axes_box)
+            assert overlap is None or overlap.width * overlap.height == 0, (box, axes_box)
+
+
+def _labelled(fig) -> None:
+    """Every visible axes has a title, and the figure labels its x and y axes (axes in a grid
+    share the labels of the outer row and column)."""
+    shown = [ax for ax in fig.axes if ax.axison]
+    assert all(ax.get_title() for ax in shown)
+    assert any(ax.get_xlabel() for ax in shown) and any(ax.get_ylabel() for ax in shown)
+
+
+@pytest.mark.parametrize("figure", ["samples", "predictions", "attention"])
+def test_every_figure_explains_itself_beside_the_data(figure: str) -> None:
+    pred = make_predictions(n=3)
+    if figure == "samples":
+        meta = make_meta()
+        fig = plot_samples(make_trajectory_set(5, meta.num_steps), meta, num_per_case=2)
+    elif figure == "predictions":
+        fig = plot_predictions(pred, 1)
+    else:
+        fig = plot_attention(pred, 1, agent=0, target=1)
+    assert_legends_clear_of_the_axes(fig)
+    _labelled(fig)
+    texts = [t.get_text() for legend in fig.legends for t in legend.get_texts()]
+    wanted = {
+        "samples": ["main_green", "last observed step (speed plots)"],
+        "predictions": ["main_green (predicted)", "true trajectories", "last observed position"],
+        "attention": ["interaction period", "true label (1: attends to it)", "last observed step"],
+    }[figure]
+    assert set(wanted) <= set(texts), texts
+
+
+def _stopping_set(stop_at: int):
+    """Two scenes of make_trajectory_set where main agent 0 of scene 0 moves at 10 m/s along x
+    up to step `stop_at` and stands there from then on: its speed, from the step before, is 0
+    from step stop_at + 1 (scene 1, the other case, never stops)."""
+    meta = make_meta()
+    data = make_trajectory_set(2, meta.num_steps)
+    x = 5.0 + 10.0 * meta.dt * np.minimum(np.arange(meta.num_steps), stop_at)
+    data.states[0, :, 0, 0] = x
+    data.states[0, :, 0, 1] = 0.0
+    return data, meta
+
+
+def stop_marks(ax) -> list:
+    """The axes' scatter collections drawn with the stop marker's red edge."""
+    from matplotlib.colors import to_rgba
+
+    from predictor.plots import STOP_COLOR
+
+    red = np.array(to_rgba(STOP_COLOR))
+    return [
+        c
+        for c in ax.collections
+        if len(c.get_edgecolor()) and np.allclose(c.get_edgecolor(), red[None, :])
+    ]
+
+
+def test_samples_show_the_speed_and_mark_a_stop() -> None:
+    stop_at = 6
+    data, meta = _stopping_set(stop_at)
+    fig = plot_samples(data, meta, num_per_case=1)
+    path_ax, speed_ax = fig.axes[0], fig.axes[1]  # scene 0 (case "major") and its speed
+    assert speed_ax.get_ylabel() == "speed [m/s]" and speed_ax.get_xlabel() == "time [s]"
+    green = next(line for line in speed_ax.get_lines() if line.get_color() == "#2ca02c")
+    expected = np.where(np.arange(meta.num_steps) <= stop_at, 10.0, 0.0)
+    expected[0] = np.nan  # no previous step
+    np.testing.assert_allclose(green.get_ydata(), expected, atol=1e-4)
+    (mark,) = stop_marks(path_ax)  # one stop: where agent 0 stands
+    np.testing.assert_allclose(mark.get_offsets(), [data.states[0, stop_at, 0, :2]])
+    (mark,) = stop_marks(speed_ax)
+    np.testing.assert_allclose(mark.get_offsets(), [[(stop_at + 1) * meta.dt, 0.0]], atol=1e-4)
+    assert stop_marks(fig.axes[2]) == [] and stop_marks(fig.axes[3]) == []  # never stops
+    texts = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert "stops (speed < 0.5 m/s)" in texts
+    moving = plot_samples(make_trajectory_set(2, meta.num_steps), meta, num_per_case=1)
+    assert "stops (speed < 0.5 m/s)" not in [t.get_text() for t in moving.legends[0].get_texts()]
+
+
+def test_halting_car_samples_show_the_leaders_stop_in_the_stop_case(tmp_path: Path) -> None:
+    """On generated Halting Car v3 data: every `stop` scene marks the leader's (brown) stop
+    where its recorded speed first falls under 0.5 m/s; no `go` scene marks one."""
+    from pipeline.generation import GenerateConfig, generate_dataset
+    from predictor.format_reader import read_meta, read_split
+
+    path = tmp_path / "hc.h5"
+    config = GenerateConfig.for_scenario("halting_car_v3", num_major=2, num_minor=1, num_test=2)
+    generate_dataset(config, path, progress=False)
+    meta, test = read_meta(path), read_split(path, "test")
+    fig = plot_samples(test, meta, num_per_case=2)
+    leader = meta.role_names.index("main_brown")
+    for column, case in enumerate(meta.case_names):
+        for row, scene in enumerate(np.flatnonzero(test.case == column)[:2]):
+            path_ax = fig.axes[4 * column + 2 * row]  # per case and row: paths, then speed
+            marks = stop_marks(path_ax)
+            agent = int(np.flatnonzero(test.roles[scene] == leader)[0])
+            recorded = test.states[scene, :, agent, 3]  # the leader's recorded speed
+            if case == "stop":
+                first = int(np.argmax(recorded < 0.5))
+                assert recorded.min() < 0.5
+                points = np.concatenate([m.get_offsets() for m in marks])
+                xy = test.states[scene, :, agent, :2]
+                assert min(np.linalg.norm(points - xy[first], axis=1)) < 1.0  # within a metre
+            else:
+                assert recorded.min() > 0.5 and marks == []
 
 
 def test_samples_rejects_empty_split_and_bad_count() -> None:
@@ -251,7 +375,7 @@ def test_plot_tool_removes_the_folders_it_created_when_the_write_fails(
     out = tmp_path / "new" / "deeper" / "pred.png"
     with pytest.raises(SystemExit) as exit_info:
         plot.main(["predictions", str(pred), "--out", str(out)])
-    assert exit_info.value.code == 2
+    assert exit_info.value.code == 1  # a full disk is failed work, not a usage error
     assert capsys.readouterr().err == f"error: cannot write {out}: No space left on device\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["pred.npz"]
 

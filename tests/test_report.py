@@ -430,6 +430,30 @@ def test_every_legend_entry_lies_inside_the_figure():
             assert inside.y0 <= box.y0 and box.y1 <= inside.y1, box
 
 
+def test_no_legend_covers_the_data_of_a_report_figure(tmp_path):
+    from test_plots import assert_legends_clear_of_the_axes
+
+    every = tuple(records.LABELS)
+    runs = [RunRecord.from_eval("hc_go", v, 0, fake_eval(*ADE_FDE)) for v in every]
+    results = statistics.analyse(runs)
+    ours = load_predictions(write_predictions_npz(tmp_path / "a.npz", seed=0))
+    other = load_predictions(write_predictions_npz(tmp_path / "b.npz", seed=0))
+    drawn = (
+        figures.bar_figure(results, "hc_go", every, CaseNames("go", "stop"), "t"),
+        figures.size_figure(results, ["hc_go"], ["1+1"], every),
+        figures.scene_figure(ours, other, 0, "scene"),
+    )
+    for fig in drawn:
+        assert_legends_clear_of_the_axes(fig)
+    trajectories = drawn[2].axes[0].get_legend()
+    assert [t.get_text() for t in trajectories.get_texts()] == [
+        "truth, other cars",
+        "truth, main cars",
+        "S-Attn",
+        "Ours",
+    ]
+
+
 def test_figures_are_saved_atomically(tmp_path, monkeypatch):
     results = statistics.analyse(hand_runs())
     fig = figures.bar_figure(results, "hc_go", ("ours", "s_attn"), CaseNames("go", "stop"), "t")

@@ -196,7 +196,7 @@ def test_closed_stdout_ends_quietly(smoke):
         (
             "train.py",
             ["--data", "{data}", "--out", "{run}", "--resume", "--lr", "0.5"],
-            "keeps its stored configuration: lr is 0.001 there",
+            "--lr 0.5 differs from the stored run's --lr 0.001 (a resumed run keeps its",
         ),
         (
             "evaluate.py",
@@ -212,7 +212,12 @@ def test_closed_stdout_ends_quietly(smoke):
             ["--run", "{run}", "--data", "{foreign}", "--out", "{tmp}/e.json"],
             "not an HDF5 file",
         ),
-        ("evaluate.py", ["--run", "{run}", "--data", "{data}"], "already exists"),
+        (
+            "evaluate.py",
+            ["--run", "{run}", "--data", "{data}"],
+            "eval.json already exists; pass --overwrite to replace it, or --out FILE.json to "
+            "write elsewhere",
+        ),
         (
             "evaluate.py",
             ["--run", "{tmp}", "--data", "{data}", "--out", "{tmp}/e.json"],
@@ -332,13 +337,18 @@ def write_other_dataset(path: Path) -> Path:
     return path
 
 
-def test_evaluate_refuses_data_of_another_scenario(smoke, tmp_path, capsys):
+def renamed_copy(source: Path, path: Path, scenario: str) -> Path:
+    """A byte copy of the dataset `source` whose scenario attribute says `scenario`."""
     import h5py
 
-    data = tmp_path / "renamed.h5"
-    data.write_bytes(Path(smoke["data"]).read_bytes())
-    with h5py.File(data, "r+") as file:
-        file.attrs["scenario"] = "double_merge"
+    path.write_bytes(Path(source).read_bytes())
+    with h5py.File(path, "r+") as file:
+        file.attrs["scenario"] = scenario
+    return path
+
+
+def test_evaluate_refuses_data_of_another_scenario_naming_the_flag(smoke, tmp_path, capsys):
+    data = renamed_copy(smoke["data"], tmp_path / "renamed.h5", "double_merge")
     with pytest.raises(SystemExit) as exit_info:
         argv = ["--run", str(smoke["run"]), "--data", str(data), "--out", str(tmp_path / "e.json")]
         load_tool("evaluate.py").main(argv)
@@ -347,8 +357,62 @@ def test_evaluate_refuses_data_of_another_scenario(smoke, tmp_path, capsys):
     assert not (tmp_path / "e.json").exists()
     assert err == (
         f"error: {smoke['run'] / 'best.pt'} was trained on data with scenario 'braking_test', "
-        f"but {data} has scenario 'double_merge'\n"
+        f"but {data} has scenario 'double_merge'; pass --allow-scenario-mismatch to evaluate it "
+        "on this data anyway (dt, the horizons and the agent count match)\n"
     )
+
+
+def test_evaluate_on_another_scenario_when_asked_names_the_mismatch(smoke, tmp_path, capsys):
+    """The same scenes under another scenario name: asked for, the scores are those of the
+    original file, and the output says which scenario the run was trained on."""
+    from predictor.evaluation import evaluate_run
+
+    data = renamed_copy(smoke["data"], tmp_path / "v2.h5", "braking_v2")
+    out = tmp_path / "e.json"
+    argv = ["--run", str(smoke["run"]), "--data", str(data), "--out", str(out), "--no-progress"]
+    load_tool("evaluate.py").main([*argv, "--allow-scenario-mismatch"])
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == (
+        "scenario mismatch: the run was trained on braking_test data and is evaluated on "
+        "braking_v2 data (same dt, horizons and agent count)"
+    )
+    assert " test scenes of braking_v2 (trained on braking_test) in " in lines[-1]
+    stored = json.loads(out.read_text())
+    assert stored["scenario_mismatch"] == {
+        "trained_on": "braking_test",
+        "evaluated_on": "braking_v2",
+    }
+    original = json.loads((smoke["run"] / "eval.json").read_text())
+    assert stored["main_agents"] == original["main_agents"]
+    assert stored["all_agents"] == original["all_agents"]
+    assert "scenario_mismatch" not in original
+    evaluation = evaluate_run(smoke["run"], data, allow_scenario_mismatch=True)
+    assert evaluation.scenario_mismatch == ("braking_test", "braking_v2")
+
+
+@pytest.mark.parametrize("change", ["agents", "dt"])
+def test_another_scenario_with_other_shapes_or_timing_stays_refused(
+    smoke, tmp_path, capsys, change
+):
+    import h5py
+
+    data = tmp_path / "other.h5"
+    if change == "agents":  # 5 agents where the run was trained on 4
+        write_braking_dataset(data, counts=(2, 2, 2), agents=5)
+        expected = "with scenario 'braking_test', num_agents 4, but"
+    else:
+        write_other_dataset(data)
+        expected = "with scenario 'braking_test', dt 0.2, num_predicted 7, but"
+    with h5py.File(data, "r+") as file:
+        file.attrs["scenario"] = "braking_v2"
+    argv = ["--run", str(smoke["run"]), "--data", str(data), "--out", str(tmp_path / "e.json")]
+    with pytest.raises(SystemExit) as exit_info:
+        load_tool("evaluate.py").main([*argv, "--allow-scenario-mismatch"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert expected in err and err.count("\n") == 1
+    assert "--allow-scenario-mismatch" not in err  # the flag would not help
+    assert not (tmp_path / "e.json").exists()
 
 
 def _refuse_writes_in(monkeypatch, directory: Path) -> None:
@@ -371,7 +435,7 @@ def test_evaluate_unwritable_output_is_one_line(smoke, tmp_path, capsys, monkeyp
     _refuse_writes_in(monkeypatch, read_only)
     outputs = {"--out": tmp_path / "e.json", "--save-predictions": tmp_path / "p.npz"}
     outputs[target] = read_only / ("e.json" if target == "--out" else "p.npz")
-    argv = ["--baseline", "const_vel", "--data", str(smoke["data"])]
+    argv = ["--baseline", "const_vel", "--data", str(smoke["data"]), "--no-progress"]
     for flag, path in outputs.items():
         argv += [flag, str(path)]
     with pytest.raises(SystemExit) as exit_info:
@@ -408,7 +472,10 @@ def test_train_interrupted_in_the_first_epoch_keeps_nothing(smoke, tmp_path, cap
         load_tool("train.py").main(argv)
     assert exit_info.value.code == 130
     err = capsys.readouterr().err
-    assert err == f"error: interrupted before the first epoch ended; nothing was kept in {run}\n"
+    assert err == (
+        f"error: interrupted before the first epoch ended; nothing was kept in {run}; run the "
+        "same command again to start over\n"
+    )
     assert not run.exists()
 
 

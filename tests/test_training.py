@@ -253,9 +253,9 @@ def test_resume_configs_apply_only_the_allowed_changes(braking_file: Path, tmp_p
     resumed_model, resumed_train = resume_configs(run, {"epochs": 4, "eval_every": 2, **same})
     assert resumed_model == model_cfg
     assert (resumed_train.epochs, resumed_train.eval_every, resumed_train.lr) == (4, 2, 3e-3)
-    with pytest.raises(RunError, match="lr is 0.003 there .only epochs, threads, eval_every"):
+    with pytest.raises(RunError, match="lr is 0.003 there, 0.1 asked .only epochs, threads, eval"):
         resume_configs(run, {"lr": 0.1})
-    with pytest.raises(RunError, match="embed_dim is 8 there"):
+    with pytest.raises(RunError, match="embed_dim is 8 there, 16 asked"):
         resume_configs(run, {"embed_dim": 16})
     with pytest.raises(RunError, match="unknown setting 'colour'"):
         resume_configs(run, {"colour": 1})

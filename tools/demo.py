@@ -18,19 +18,37 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 import time
 from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
+from tqdm import tqdm
 
 from carlo_lite import render_rgb
-from pipeline.cli import ArgumentParser, fail, run_main, writing
-from pipeline.generation import DEFAULT_SCENARIO, GenerateConfig, generate_dataset
-from predictor.evaluation import evaluate_baseline, evaluate_run
+from pipeline.cli import (
+    FAILED,
+    INTERRUPTED,
+    ArgumentParser,
+    fail,
+    run_main,
+    status,
+    write_failure_code,
+    writing,
+)
+from pipeline.frames import annotate, legend_entries
+from pipeline.generation import (
+    DEFAULT_SCENARIO,
+    GenerateConfig,
+    UnsafeExpertError,
+    generate_dataset,
+)
+from predictor.evaluation import EvaluationError, evaluate_baseline, evaluate_run
 from predictor.format_reader import read_meta, read_split
 from predictor.plots import plot_attention, plot_predictions, plot_samples, save_figure
-from predictor.presets import make_configs
+from predictor.presets import DEFAULT_PRESET, make_configs
+from predictor.run_files import RunError, RunWriteError
 from predictor.training import train
 from scenarios import env_module
 
@@ -55,15 +73,21 @@ DEMO_FILES = frozenset(
 
 
 def simulate_episode(out: Path, seed: int) -> Path:
-    """Run one expert episode of the minor case and write its last frame and a GIF."""
+    """Run one expert episode of the minor case and write its middle frame and a GIF, each
+    frame titled (scenario, case, time) with a legend of the car colours."""
     env = env_module(DEMO_SCENARIO).parallel_env()
     env.reset(seed=seed, options={"case": "minor"})
+    world = env.unwrapped.world
+    legend = legend_entries(DEMO_SCENARIO, list(world.roles))
+    dt = env.unwrapped.config.recorded_dt
     frames = []
-    while env.agents:
+    steps = env.unwrapped.max_cycles
+    for step in tqdm(range(steps), desc="simulate an episode", unit="step", file=sys.stderr):
         env.step(env.unwrapped.expert_actions())
-        world = env.unwrapped.world
         center = (float(world.xy[:2, 0].mean()), world.road.width_m / 2)
-        frames.append(render_rgb(world, 640, 160, center_xy=center))
+        title = f"{DEMO_SCENARIO}, minor case, expert drivers: t = {(step + 1) * dt:.1f} s"
+        frames.append(annotate(render_rgb(world, 640, 160, center_xy=center), title, legend))
+    status("simulate: writing episode.png and episode.gif")
     iio.imwrite(out / "episode.png", frames[len(frames) // 2])
     iio.imwrite(out / "episode.gif", np.stack(frames[::2]), duration=200, loop=0)
     return out / "episode.gif"
@@ -118,20 +142,39 @@ def main(argv: list[str] | None = None) -> None:
         model_cfg, train_cfg = make_configs("ours", epochs=args.epochs, seed=args.seed)
     except ValueError as err:
         fail(f"--seed: {err}")
-    started = time.perf_counter()
     out = Path(args.out)
     replace_output_folder(out, args.overwrite)
+    try:
+        run_demo(out, config, model_cfg, train_cfg)
+    except KeyboardInterrupt:
+        fail(
+            f"interrupted; {out} holds what was done so far; run the demo again to start over",
+            INTERRUPTED,
+        )
+    except FloatingPointError as err:
+        fail(f"training diverged: {err}", FAILED)
+    except RunWriteError as err:
+        fail(str(err), write_failure_code(err.errno))
+    except OSError as err:
+        fail(f"cannot write in {out}: {err.strerror or err}", write_failure_code(err.errno))
+    except (UnsafeExpertError, RunError, EvaluationError) as err:  # the defaults failed
+        fail(str(err), FAILED)
 
-    print(f"== simulate: wrote {simulate_episode(out, args.seed)}", flush=True)
+
+def run_demo(out: Path, config: GenerateConfig, model_cfg, train_cfg) -> None:
+    """The demo's five steps into the emptied folder `out`: a line on stdout as each starts and
+    the results on its last line; bars and status lines on stderr."""
+    started = time.perf_counter()
+    print(f"== simulate: wrote {simulate_episode(out, config.seed)}", flush=True)
     data = out / f"{DEMO_SCENARIO}.h5"
     print("== generate", flush=True)
     print(generate_dataset(config, data).summary(), flush=True)
     print("== train", flush=True)
     run = out / "run_ours"
-    print(train(data, model_cfg, train_cfg, run).summary("ours"), flush=True)
+    print(train(data, model_cfg, train_cfg, run, preset=DEFAULT_PRESET).summary("ours"), flush=True)
     print("== evaluate", flush=True)
-    ours = evaluate_run(run, data, "test")
-    const_vel = evaluate_baseline("const_vel", data, "test")
+    ours = evaluate_run(run, data, "test", progress=True)
+    const_vel = evaluate_baseline("const_vel", data, "test", progress=True)
     write_json(run / "eval.json", ours.to_dict())
     write_json(out / "eval_const_vel.json", const_vel.to_dict())
     with writing(out / "predictions.npz") as temp:
@@ -139,14 +182,15 @@ def main(argv: list[str] | None = None) -> None:
     for evaluation in (ours, const_vel):
         print(f"{evaluation.predictor}: {evaluation.headline()}", flush=True)
     print("== plot", flush=True)
+    status("plot: samples.png, predictions.png, attention.png")
     write_figure(out / "samples.png", plot_samples(read_split(data, "train"), read_meta(data)))
     write_figure(out / "predictions.png", plot_predictions(ours.predictions, 0))
     write_figure(out / "attention.png", plot_attention(ours.predictions, 0, 0, 1))
     ade = [e.to_dict()["main_agents"]["overall"]["ade"] for e in (ours, const_vel)]
     print(
         f"demo done in {time.perf_counter() - started:.0f} s: test ADE of the main cars "
-        f"{ade[0]:.2f} m (ours, {args.epochs} epochs) vs {ade[1]:.2f} m (constant velocity); "
-        f"results in {out}/"
+        f"{ade[0]:.2f} m (ours, {train_cfg.epochs} epochs) vs {ade[1]:.2f} m (constant "
+        f"velocity); results in {out}/"
     )
 
 

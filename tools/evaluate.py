@@ -21,7 +21,14 @@ to constant velocity's, and how far a main agent's prediction moves when the his
 car it attends to (its label) is swapped with another scene's, next to the same swap of a
 distractor. Writes JSON (default RUN/eval.json) and, with --save-predictions,
 the predictions file (.npz, docs/dataset_format.md) for tools/plot.py. A run is evaluated only
-on data of the scenario, dt and horizons it was trained on.
+on data of the scenario, dt and horizons it was trained on; --allow-scenario-mismatch evaluates
+it on another scenario's data (a transfer study: Halting Car v3's model on v2's data) when dt,
+the horizons and the agent count match, and the output names both scenarios (printed, and
+`scenario_mismatch` in the JSON).
+
+Re-evaluating a run: its eval.json exists, so pass --overwrite to replace it or --out FILE.json
+to write beside it. Exit status (docs/CLI.md): 0 evaluated; 2 usage or input error (one line);
+1 a write that failed (full disk); 130 interrupted (nothing written).
 """
 
 from __future__ import annotations
@@ -32,13 +39,22 @@ from pathlib import Path
 
 import torch
 
-from pipeline.cli import ArgumentParser, check_output, fail, require_file, run_main, writing
+from pipeline.cli import (
+    INTERRUPTED,
+    ArgumentParser,
+    check_output,
+    fail,
+    require_file,
+    run_main,
+    writing,
+)
 from predictor.baselines import BASELINES
 from predictor.evaluation import (
     CHECKPOINTS,
     CheckpointError,
     Evaluation,
     EvaluationError,
+    ScenarioMismatchError,
     evaluate_baseline,
     evaluate_run,
 )
@@ -77,6 +93,13 @@ def parse_args(argv: list[str] | None = None):
         help="also write the predictions for tools/plot.py",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    parser.add_argument(
+        "--allow-scenario-mismatch",
+        action="store_true",
+        help="with --run: evaluate on data of another scenario than the run was trained on, "
+        "when dt, the horizons and the agent count match (the output names both scenarios)",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--batch-size", type=int, default=32, help="scenes per forward pass")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     return parser.parse_args(argv)
@@ -85,6 +108,8 @@ def parse_args(argv: list[str] | None = None):
 def check_args(args) -> tuple[Path | None, Path | None]:
     """Validate paths and numbers (exit 2 otherwise); returns (json_out, npz_out)."""
     require_file(args.data, "data file")
+    if args.allow_scenario_mismatch and args.run is None:
+        fail("--allow-scenario-mismatch applies to --run (a baseline fits on the file itself)")
     if args.batch_size < 1 or args.threads < 1:
         fail("--batch-size and --threads must be at least 1")
     out = args.out
@@ -94,8 +119,10 @@ def check_args(args) -> tuple[Path | None, Path | None]:
             fail(f"run directory {args.run} {what}")
         require_file(Path(args.run) / f"{args.checkpoint}.pt", "checkpoint")
         out = out or str(Path(args.run) / "eval.json")
-    json_out = check_output(out, args.overwrite) if out else None
-    npz_out = check_output(args.save_predictions, args.overwrite) if args.save_predictions else None
+    json_out = check_output(out, args.overwrite, "--out FILE.json") if out else None
+    npz_out = None
+    if args.save_predictions:
+        npz_out = check_output(args.save_predictions, args.overwrite, "another --save-predictions")
     if json_out is not None and npz_out is not None and json_out.resolve() == npz_out.resolve():
         fail("--out and --save-predictions name the same file")
     return json_out, npz_out
@@ -156,11 +183,28 @@ def _row(group: dict, name: str) -> dict:
 
 
 def evaluate(args) -> Evaluation:
-    """The evaluation the arguments ask for; exits 2 with one line on bad input."""
+    """The evaluation the arguments ask for; exits 2 with one line on bad input, 130 on
+    Ctrl-C."""
+    progress = not args.no_progress
     try:
         if args.baseline:
-            return evaluate_baseline(args.baseline, args.data, args.split)
-        return evaluate_run(args.run, args.data, args.split, args.checkpoint, args.batch_size)
+            return evaluate_baseline(args.baseline, args.data, args.split, progress=progress)
+        return evaluate_run(
+            args.run,
+            args.data,
+            args.split,
+            args.checkpoint,
+            args.batch_size,
+            progress=progress,
+            allow_scenario_mismatch=args.allow_scenario_mismatch,
+        )
+    except KeyboardInterrupt:
+        fail("interrupted; nothing was written", code=INTERRUPTED)
+    except ScenarioMismatchError as err:
+        fail(
+            f"{err}; pass --allow-scenario-mismatch to evaluate it on this data anyway (dt, the "
+            "horizons and the agent count match)"
+        )
     except (CheckpointError, EvaluationError, FormatError, OSError) as err:
         fail(str(err))
 
@@ -172,6 +216,9 @@ def main(argv: list[str] | None = None) -> None:
     started = time.perf_counter()
     evaluation = evaluate(args)
     result = evaluation.to_dict()
+    note = evaluation.mismatch_note()
+    if note is not None:
+        print(note)
     print(format_table(result, evaluation.meta.case_names))
     print(format_diagnostics(result.get("diagnostics")))
     if npz_out is not None:
@@ -181,8 +228,12 @@ def main(argv: list[str] | None = None) -> None:
         with writing(json_out) as temp:
             temp.write_text(json.dumps(result, indent=2, allow_nan=False) + "\n")
     written = ", ".join(str(p) for p in (json_out, npz_out) if p is not None) or "nothing written"
+    other = ""
+    if evaluation.scenario_mismatch is not None:
+        trained, evaluated = evaluation.scenario_mismatch
+        other = f" of {evaluated} (trained on {trained})"
     print(
-        f"{evaluation.predictor} on {evaluation.scenes} {args.split} scenes in "
+        f"{evaluation.predictor} on {evaluation.scenes} {args.split} scenes{other} in "
         f"{time.perf_counter() - started:.1f} s: {evaluation.headline()} ({written})"
     )
 

@@ -18,8 +18,9 @@ or a case_id of it). See pipeline/importers/interaction.py.
 
 The data is read from disk as downloaded; nothing is fetched.
 
-All files or none are written; an existing output is refused unless --overwrite. Exit status: 0
-written; 2 usage error or malformed input (one line naming the file and line); 130 interrupted.
+All files or none are written; an existing output is refused unless --overwrite. Exit status
+(docs/CLI.md): 0 written; 2 usage error, malformed input (one line naming the file and line) or
+an output that cannot be written there; 1 a write that failed (full disk); 130 interrupted.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipeline.cli import ArgumentParser, fail, run_main
+from pipeline.cli import INTERRUPTED, ArgumentParser, fail, run_main, write_failure_code
 from pipeline.importers.common import ImportDataError
 from pipeline.importers.eth_ucy import SCENES, EthUcyConfig, import_eth_ucy
 from pipeline.importers.interaction import InteractionConfig, import_interaction
@@ -77,9 +78,9 @@ def _run(args: argparse.Namespace) -> list[Path]:
     """The import the subcommand asks for; ValueError for a bad setting."""
     if args.command == "eth-ucy":
         config = EthUcyConfig(scenes=tuple(args.scenes), stride=args.stride)
-        return import_eth_ucy(args.root, args.out, config, overwrite=args.overwrite)
+        return import_eth_ucy(args.root, args.out, config, args.overwrite, progress=True)
     config = InteractionConfig(stride=args.stride, seed=args.seed)
-    return [import_interaction(args.inputs, args.out, config, overwrite=args.overwrite)]
+    return [import_interaction(args.inputs, args.out, config, args.overwrite, progress=True)]
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -87,11 +88,11 @@ def main(argv: list[str] | None = None) -> None:
     try:
         paths = _run(args)
     except KeyboardInterrupt:
-        fail("interrupted; nothing was written", code=130)
+        fail("interrupted; nothing was written", code=INTERRUPTED)
     except (ImportDataError, FormatError, ValueError) as err:
         fail(str(err))
     except OSError as err:
-        fail(f"cannot write to {args.out}: {err.strerror or err}")
+        fail(f"cannot write to {args.out}: {err.strerror or err}", write_failure_code(err.errno))
     for path in paths:
         print(summarize(Path(path)), end="\n\n")
     print(f"wrote {len(paths)} file(s): {', '.join(str(p) for p in paths)}")

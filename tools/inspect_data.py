@@ -12,7 +12,8 @@ of per role; --gain-penalty banded gives the other car's features a ridge penalt
 --gain-control shuffled replaces the random car by the labelled car of another scene, a null
 control whose change is what fitting features that carry nothing costs at the file's size.
 
-Exit status: 0 valid; 1 the file exists but is not a valid dataset; 2 usage error / missing file.
+Exit status (docs/CLI.md): 0 valid; 2 usage error, a missing file, a file that is not a valid
+dataset or one the interaction gain cannot use (one line naming the problem); 130 interrupted.
 """
 
 from __future__ import annotations
@@ -61,8 +62,8 @@ def main(argv: list[str] | None = None) -> None:
     path = require_file(args.file)
     try:
         text, version = summarize(path), read_meta(path).schema_version
-    except FormatError as err:
-        fail(str(err), code=1)
+    except FormatError as err:  # an input error, as in every tool that reads the file
+        fail(str(err))
     print(text)
     print(f"OK: {path} is a valid schema v{version} dataset")
     if args.interaction_gain:

@@ -4,13 +4,17 @@
     python tools/play.py --scenario halting_car_v3 --case stop --record stop.gif
     python tools/play.py --scenario double_merge_v1 --render human --control car_0
 
+Every frame, in the window and in a recording, has a title (scenario, case, time), a legend of the
+car colours and, for a few seconds after a car leaves the episode, a red notice saying which car
+and why (collided, left the road).
+
 The expert drives every car except the one given to --control, which you steer with the arrow
 keys (left/right: steer, up: accelerate, down: brake; Esc or closing the window ends the
-episode). --render human needs pygame and a display: without one (no DISPLAY or
-WAYLAND_DISPLAY on Linux, or SDL_VIDEODRIVER=dummy/offscreen) it stops at once with one line
-instead of playing to an invisible window. --record writes the frames as a .gif (or .mp4 when
-imageio-ffmpeg is installed), headless, atomically, refusing to replace an existing file without
---overwrite. The same arguments give the same episode.
+episode). --render human needs pygame and a display: without one (no DISPLAY or WAYLAND_DISPLAY
+on Linux, or SDL_VIDEODRIVER=dummy/offscreen) it stops at once with one line instead of playing
+to an invisible window. --record writes the frames as a .gif (or .mp4 when imageio-ffmpeg is
+installed), headless, atomically, refusing to replace an existing file without --overwrite. The
+same arguments give the same episode.
 """
 
 from __future__ import annotations
@@ -28,7 +32,24 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.cli import ArgumentParser, check_output, fail, writing
+from pipeline.cli import (
+    INTERRUPTED,
+    ArgumentParser,
+    check_output,
+    fail,
+    run_main,
+    write_failure_code,
+    writing,
+)
+from pipeline.frames import (
+    NOTICE_SECONDS,
+    Notice,
+    active_notices,
+    annotate,
+    legend_entries,
+    removal_notice,
+    removal_reason,
+)
 from scenarios import VERSIONS, choices_text, env_module, lookup
 
 STEER_RAD = 0.12  # steering while an arrow key is held
@@ -147,20 +168,32 @@ class Keyboard:
 
 
 def play(args: argparse.Namespace, case: str) -> tuple[dict, list[np.ndarray]]:
-    """Run the episode; returns (summary counts, frames recorded for the video)."""
+    """Run the episode; returns (summary counts, frames recorded for the video).
+
+    Every frame shown or recorded carries a title (scenario, case, time), a legend of the car
+    colours and, for NOTICE_SECONDS after a car leaves the episode, a notice saying which car
+    and why (collided, left the road)."""
     module = env_module(args.scenario)
     want_frames = args.render == "human" or args.record is not None
     env = module.parallel_env(render_mode="rgb_array" if want_frames else None)
     env.reset(seed=args.seed, options={"case": case})
+    fps = env.metadata["render_fps"]
+    legend = legend_entries(args.scenario, list(env.unwrapped.world.roles))
+    notices: list[Notice] = []
+    notice_steps = max(1, math.ceil(NOTICE_SECONDS * fps))
+
+    def frame(step: int) -> np.ndarray:
+        title = f"{args.scenario}, case {case}, seed {args.seed}: t = {step / fps:.1f} s"
+        return annotate(env.render(), title, legend, active_notices(notices, step))
+
     viewer = keyboard = None
     if args.render == "human":
         from carlo_lite import HumanViewer
 
-        viewer = HumanViewer(
-            f"{args.scenario} ({case})", fps=args.fps or env.metadata["render_fps"]
-        )
-    frames = [env.render()] if want_frames else []
-    removed, steps = set(), 0
+        viewer = HumanViewer(f"{args.scenario} ({case})", fps=args.fps or fps)
+    frames = [frame(0)] if want_frames else []
+    removed: dict[str, str] = {}  # agent -> why it left
+    steps = 0
     try:
         if viewer is not None:
             viewer.show(frames[-1])
@@ -170,12 +203,17 @@ def play(args: argparse.Namespace, case: str) -> tuple[dict, list[np.ndarray]]:
                 actions = env.unwrapped.expert_actions()
                 if keyboard is not None and args.control in actions:
                     actions[args.control] = keyboard.action()
-                _, _, terminations, _, _ = env.step(actions)
-                removed |= {agent for agent, done in terminations.items() if done}
+                _, _, terminations, _, infos = env.step(actions)
                 steps += 1
+                for agent in sorted(a for a, done in terminations.items() if done):
+                    if agent not in removed:
+                        info = infos.get(agent, {})
+                        removed[agent] = removal_reason(info)
+                        text = removal_notice(args.scenario, agent, info)
+                        notices.append(Notice(text, steps, steps + notice_steps - 1))
                 bar.update()
                 if want_frames:
-                    frames.append(env.render())
+                    frames.append(frame(steps))
                     if args.record is None:
                         del frames[:-1]  # only the window needs it: keep the latest frame
                 if viewer is not None:
@@ -184,7 +222,11 @@ def play(args: argparse.Namespace, case: str) -> tuple[dict, list[np.ndarray]]:
         if viewer is not None:
             viewer.close()
         env.close()
-    summary = {"steps": steps, "removed": sorted(removed), "cars": len(env.possible_agents)}
+    summary = {
+        "steps": steps,
+        "removed": dict(sorted(removed.items())),
+        "cars": len(env.possible_agents),
+    }
     return summary, frames if args.record is not None else []
 
 
@@ -217,7 +259,7 @@ def save_video(video: Path, frames: list[np.ndarray], args: argparse.Namespace) 
     try:
         write_video(video, frames, fps)
     except OSError as error:
-        fail(f"cannot write {video}: {error.strerror or error}")
+        fail(f"cannot write {video}: {error.strerror or error}", write_failure_code(error.errno))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -228,11 +270,12 @@ def main(argv: list[str] | None = None) -> None:
         if video is not None:
             save_video(video, frames, args)
     except KeyboardInterrupt:
-        fail("interrupted; nothing was written", code=130)
+        fail("interrupted; nothing was written", code=INTERRUPTED)
+    removed = summary["removed"]
     message = (
         f"{args.scenario} {case} seed {args.seed}: {summary['steps']} steps, "
-        f"{len(summary['removed'])} of {summary['cars']} cars removed"
-        + (f" ({', '.join(summary['removed'])})" if summary["removed"] else "")
+        f"{len(removed)} of {summary['cars']} cars removed"
+        + (f" ({', '.join(f'{a}: {why}' for a, why in removed.items())})" if removed else "")
     )
     if video is not None:
         message += f"; wrote {video} ({len(frames)} frames)"
@@ -240,4 +283,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

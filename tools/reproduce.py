@@ -104,7 +104,7 @@ import sys
 from pathlib import Path
 
 from pipeline.backends import BACKENDS
-from pipeline.cli import ArgumentParser, fail
+from pipeline.cli import FAILED, INTERRUPTED, ArgumentParser, fail, run_main, status
 from pipeline.protocol import (
     ALL_VARIANTS,
     DATA_SEED,
@@ -371,15 +371,19 @@ def main(argv: list[str] | None = None) -> None:
             budget_s,
             backend=args.backend,
             address=args.address,
+            status=status,
         )
     except KeyboardInterrupt:
         fail(
-            "interrupted; finished runs are cached: run the same command again to resume", code=130
+            "interrupted; finished runs are cached: run the same command again to resume",
+            code=INTERRUPTED,
         )
     except (ReproductionError, RayUnavailableError) as err:
         fail(str(err))
+    except FileExistsError as err:  # appeared since output_paths checked
+        fail(f"{err}; pass --overwrite to replace the report")
     except (OSError, RuntimeError, ValueError) as err:
-        fail(str(err), code=1)
+        fail(str(err), code=FAILED)
     counts = done.counts
     print(
         f"wrote {report} (+ {report.with_name('results.json').name}, {done.figures} figures in "
@@ -390,9 +394,10 @@ def main(argv: list[str] | None = None) -> None:
         f"reused, in {done.seconds:.1f} s"
     )
     if counts.failed:
-        raise SystemExit(1)
+        first = counts.failures[0] if counts.failures else "see the report"
+        fail(f"{counts.failed} of {counts.runs} runs failed (first: {first})", code=FAILED)
 
 
 if __name__ == "__main__":
     signal.signal(signal.SIGTERM, _interrupt)
-    main()
+    run_main(main)

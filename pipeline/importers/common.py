@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 
@@ -151,12 +153,34 @@ def check_outputs(paths: list[Path], overwrite: bool) -> None:
             raise ImportDataError(f"output directory {path.parent}: {existing} is not a directory")
 
 
+READING_BAR_DELAY_S = 2.0  # a read that ends sooner (or fails on a malformed line) shows none
+
+
+def reading_bar(files: int, desc: str, enabled: bool) -> tqdm:
+    """A progress bar on stderr over the input files an importer reads (silent if not
+    `enabled`), shown once reading has taken READING_BAR_DELAY_S: a quick import, and the one
+    error line of a malformed input found early, come without it."""
+    return tqdm(
+        total=files,
+        desc=desc,
+        unit="file",
+        disable=not enabled,
+        file=sys.stderr,
+        delay=READING_BAR_DELAY_S,
+    )
+
+
 def write_all(
-    files: Mapping[Path, tuple[DatasetMeta, Mapping[str, TrajectorySet]]], overwrite: bool
+    files: Mapping[Path, tuple[DatasetMeta, Mapping[str, TrajectorySet]]],
+    overwrite: bool,
+    progress: bool = False,
 ) -> list[Path]:
     """Write every file, all or nothing: each goes to a temporary name first and they are
-    renamed onto their targets only once all are written (missing directories are created)."""
+    renamed onto their targets only once all are written (missing directories are created).
+    With `progress`, a line on stderr says so first."""
     check_outputs(list(files), overwrite)
+    if progress:
+        print(f"writing {len(files)} file(s)", file=sys.stderr, flush=True)
     temps: dict[Path, Path] = {}
     try:
         for path, (meta, splits) in files.items():

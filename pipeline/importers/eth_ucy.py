@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +36,7 @@ from pipeline.importers.common import (
     check_outputs,
     cut_windows,
     frame_step,
+    reading_bar,
     windows_set,
     write_all,
 )
@@ -140,14 +142,17 @@ def scene_files(root: Path, scene: str) -> dict[str, list[Path]]:
 
 
 def import_scene(
-    root: Path, scene: str, config: EthUcyConfig
+    root: Path, scene: str, config: EthUcyConfig, on_file: Callable[[], None] | None = None
 ) -> tuple[DatasetMeta, dict[str, TrajectorySet]]:
-    """The schema-2 metadata and splits of one leave-one-out scene."""
+    """The schema-2 metadata and splits of one leave-one-out scene (`on_file()` after each
+    file read: progress)."""
     splits, sources = {}, {}
     for split, paths in scene_files(root, scene).items():
         parts, sources[split] = [], []
         for path in paths:
             tracks = read_tracks(path)
+            if on_file is not None:
+                on_file()
             windows = cut_windows(tracks, config.num_steps, config.stride)
             parts.append((windows, None))
             sources[split].append(
@@ -177,17 +182,24 @@ def import_scene(
 
 
 def import_eth_ucy(
-    root: str | os.PathLike, out_dir: str | os.PathLike, config: EthUcyConfig, overwrite: bool
+    root: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    config: EthUcyConfig,
+    overwrite: bool,
+    progress: bool = False,
 ) -> list[Path]:
     """Import every scene of `config.scenes` under `root` into `out_dir/eth_ucy_<scene>.h5`;
-    all files or none are written. Returns the paths."""
+    all files or none are written (with `progress`, a bar over the files read and a line
+    when writing, on stderr). Returns the paths."""
     root, out_dir = Path(root), Path(out_dir)
     if not root.is_dir():
         raise ImportDataError(f"{root}: no such folder")
     outputs = [out_dir / f"eth_ucy_{scene}.h5" for scene in config.scenes]
     check_outputs(outputs, overwrite)  # before the work, so a refusal is immediate
-    files = {
-        path: import_scene(root, scene, config)
-        for path, scene in zip(outputs, config.scenes, strict=True)
-    }
-    return write_all(files, overwrite)
+    count = sum(len(p) for scene in config.scenes for p in scene_files(root, scene).values())
+    with reading_bar(count, "read eth-ucy", progress) as bar:
+        files = {
+            path: import_scene(root, scene, config, lambda: bar.update())
+            for path, scene in zip(outputs, config.scenes, strict=True)
+        }
+    return write_all(files, overwrite, progress)

@@ -35,6 +35,7 @@ from pipeline.importers.common import (
     check_outputs,
     cut_windows,
     frame_step,
+    reading_bar,
     windows_set,
     write_all,
 )
@@ -198,13 +199,19 @@ def import_interaction(
     out: str | os.PathLike,
     config: InteractionConfig,
     overwrite: bool,
+    progress: bool = False,
 ) -> Path:
     """Import the track CSVs `inputs` (files, or folders searched for *.csv) into the file
-    `out`, written only once everything has been read. Returns the path."""
+    `out`, written only once everything has been read (with `progress`, a bar over the files
+    read and a line when writing, on stderr). Returns the path."""
     out = Path(out)
     check_outputs([out], overwrite)  # before the work, so a refusal is immediate
     paths = _csv_files(inputs)
-    sequences = [s for path in paths for s in read_sequences(path)]
+    sequences = []
+    with reading_bar(len(paths), "read interaction", progress) as bar:
+        for path in paths:
+            sequences += read_sequences(path)
+            bar.update()
     if not sequences:
         raise ImportDataError("no track rows in " + ", ".join(str(p) for p in paths))
     with_heading = all(not np.isnan(s.tracks.values[:, 4]).any() for s in sequences)
@@ -250,7 +257,7 @@ def import_interaction(
         action_names=(),
         recorded=("roles",),
     )
-    write_all({out: (meta, splits)}, overwrite)
+    write_all({out: (meta, splits)}, overwrite, progress)
     return out
 
 

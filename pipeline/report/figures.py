@@ -16,6 +16,7 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.colors import to_rgba
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 
 from pipeline.files import atomic_output
 from pipeline.report.records import CASES, LABELS, METRICS, CaseNames, Measure, Results
@@ -183,8 +184,11 @@ def scene_figure(ours: Predictions, other: Predictions, index: int, title: str) 
 def _trajectory_axes(ax: Axes, ours: Predictions, other: Predictions, index: int) -> None:
     valid = ours.valid[index]  # (T, N)
     truth = np.where(valid[..., None], ours.true_xy[index], np.nan)  # (T, N, 2)
-    ax.plot(truth[:, 2:, 0], truth[:, 2:, 1], color="#cfcfcf", linewidth=0.8, zorder=1)
-    ax.plot(truth[:, :2, 0], truth[:, :2, 1], color="#6f6f6f", linewidth=1.2, zorder=2)
+    others = ax.plot(truth[:, 2:, 0], truth[:, 2:, 1], color="#cfcfcf", linewidth=0.8, zorder=1)
+    mains = ax.plot(truth[:, :2, 0], truth[:, :2, 1], color="#6f6f6f", linewidth=1.2, zorder=2)
+    for lines, label in ((mains, "truth, main cars"), (others, "truth, other cars")):
+        if lines:
+            lines[0].set_label(label)
     steps = ours.num_observed + np.arange(ours.pred_mean.shape[1])  # (P,)
     sizes = 4.0 + 36.0 * (steps - steps[0]) / max(len(steps) - 1, 1)  # (P,)
     for pred, variant in ((other, "s_attn"), (ours, "ours")):
@@ -206,7 +210,19 @@ def _trajectory_axes(ax: Axes, ours: Predictions, other: Predictions, index: int
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.legend(fontsize="small", loc="upper left")
+    # beside the axes, never over the trajectories; the dots' markers at full opacity
+    handles = [h for h in ax.get_legend_handles_labels()[0] if isinstance(h, Line2D)]
+    handles += [
+        Line2D([], [], marker="o", linestyle="", color=COLORS[v], label=LABELS[v])
+        for v in ("s_attn", "ours")
+    ]
+    ax.legend(
+        handles=handles,
+        fontsize="small",
+        loc="upper left",
+        bbox_to_anchor=(1.01, 1.0),
+        borderaxespad=0.0,
+    )
     ax.set_title(
         "predictions (dots; darker = more attention on the other main car, larger = "
         "later) and truth (lines)",
