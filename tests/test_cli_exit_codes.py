@@ -22,6 +22,7 @@ TOOLS = (
     "generate.py",
     "import_data.py",
     "inspect_data.py",
+    "list_scenarios.py",
     "play.py",
     "plot.py",
     "reproduce.py",
@@ -225,6 +226,11 @@ def _disk_full(monkeypatch) -> None:
         ("evaluate.py", ["--baseline", "const_vel", "--data", "{data}", "--out", "{out}"], "{out}"),
         ("plot.py", ["predictions", "{pred}", "--out", "{out}"], "{out}"),
         ("train.py", ["--data", "{data}", "--out", "{out}", "--epochs", "1", *TINY], None),
+        (
+            "generate.py",
+            ["--scenario", "halting_car_v0", "--num-major", "2", "--out", "{out}"],
+            None,
+        ),
     ],
 )
 def test_a_full_disk_is_failed_work_exit_1(

@@ -26,7 +26,7 @@ import sys
 from pathlib import Path
 
 from pipeline.backends import BACKENDS
-from pipeline.cli import ArgumentParser, fail, run_main
+from pipeline.cli import FAILED, ArgumentParser, fail, run_main, write_failure_code
 from pipeline.episode_runner import DEFAULT_BATCH_SCENES
 from pipeline.generation import (
     DEFAULT_MINOR_RATIO,
@@ -131,6 +131,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "FOLDER/index.h5, read as one dataset; for outputs larger than memory (default: one file)",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    parser.add_argument(
+        "--no-progress", action="store_true", help="no progress bar or status lines on stderr"
+    )
     return parser.parse_args(argv)
 
 
@@ -188,6 +191,7 @@ def main(argv: list[str] | None = None) -> None:
             address=args.address,
             batch_scenes=args.batch_scenes,
             shard_size=args.shard_size,
+            progress=not args.no_progress,
         )
     except KeyboardInterrupt:
         fail("interrupted; nothing was written", code=130)
@@ -200,10 +204,12 @@ def main(argv: list[str] | None = None) -> None:
     except RayUnavailableError as error:
         fail(str(error))
     except OSError as error:
+        if error.filename is None:  # not a file's error (e.g. a lost Ray connection)
+            fail(f"generation failed: {error}", code=FAILED)
         detail = error.strerror or str(error)
-        if error.filename is not None and Path(error.filename) != out:
+        if Path(error.filename) != out:
             detail += f": {error.filename}"
-        fail(f"cannot write {out}: {detail}")
+        fail(f"cannot write {out}: {detail}", code=write_failure_code(error.errno))
     print(result.summary())
 
 
