@@ -131,16 +131,19 @@ class Scenes:
         """(N, B, D) float32, agent-major: each agent's ego state, then the others' relative
         states in agent order (so one agent's rows over the scenes are contiguous).
 
-        Computed with the scenes innermost (long vectorised loops), in float64, and rounded
-        once to float32; clipping after the rounding gives the same values as before it, the
-        bounds being float32 numbers.
+        Computed with the scenes innermost (long vectorised loops), in float64, clipped to the
+        bounds and rounded once to float32. The bounds are float32 numbers, so clipping before
+        the rounding gives the values that clipping after it would.
         """
         world = self.world
         num_scenes, num_cars = self.num_scenes, self.num_cars
+        low, high = self._low, self._high
         state = world.state  # (B, N, 4)
         columns = np.ascontiguousarray(state.transpose(2, 1, 0))  # (4, N, B)
-        out = np.empty((num_cars, num_scenes, len(self._low)), dtype=np.float32)  # (N, B, D)
-        out[..., :EGO_FEATURES] = state.transpose(1, 0, 2)
+        out = np.empty((num_cars, num_scenes, len(low)), dtype=np.float32)  # (N, B, D)
+        out[..., :EGO_FEATURES] = np.clip(
+            state.transpose(1, 0, 2), low[:EGO_FEATURES], high[:EGO_FEATURES]
+        )
         block = out[..., EGO_FEATURES:].reshape(num_cars, num_scenes, num_cars - 1, OTHER_FEATURES)
         active = world.active
         present = None
@@ -157,8 +160,10 @@ class Scenes:
             relative = _off_diagonal(relative)  # (N, N-1, B)
             if present is not None:
                 relative *= present
+            bound = EGO_FEATURES + feature + 1  # this feature's bounds, for the first other car
+            np.clip(relative, float(low[bound]), float(high[bound]), out=relative)
             block[..., feature + 1] = relative.transpose(0, 2, 1)
-        return np.clip(out, self._low, self._high, out=out)
+        return out
 
     def rewards(
         self, collided: np.ndarray, off_road: np.ndarray, weights: RewardWeights
