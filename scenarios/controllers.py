@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from carlo_lite.kinematics import wrap_angle
+
 
 @dataclass(frozen=True)
 class LateralGains:
@@ -123,7 +125,7 @@ def lateral_steering(
     lateral_velocity = target_rate_mps + gains.position_gain_per_s * (target_lateral_m - lateral_m)
     max_sine = np.sin(gains.max_heading_rad)
     desired_heading = np.arcsin(np.clip(lateral_velocity / speed, -max_sine, max_sine))
-    heading_error = (desired_heading - heading_rad + np.pi) % (2.0 * np.pi) - np.pi  # [-pi, pi)
+    heading_error = wrap_angle(desired_heading - heading_rad)  # [-pi, pi)
     yaw_rate = gains.heading_gain_per_s * heading_error + target_accel_mps2 / speed
     return np.arctan(yaw_rate * wheelbase_m / speed)
 

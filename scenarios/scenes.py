@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from carlo_lite import BatchedWorld
+from carlo_lite import BatchedWorld, wrap_angle
 from scenarios.base import Scenario, ScenarioConfig, ScenarioPlan
 
 EGO_FEATURES = 4  # x, y, heading, speed
@@ -51,18 +51,6 @@ def _off_diagonal(pairs: np.ndarray) -> np.ndarray:
     flat = pairs.reshape(num_cars * num_cars, *tail)[1:]
     rows = flat.reshape(num_cars - 1, num_cars + 1, *tail)[:, :num_cars]
     return rows.reshape(num_cars, num_cars - 1, *tail)
-
-
-def wrap_heading_difference(difference: np.ndarray) -> np.ndarray:
-    """A heading difference (headings in [-pi, pi)) wrapped to [-pi, pi): exactly
-    `(d + pi) % (2 pi) - pi`, without the slow float modulo. d + pi lies in (-pi, 3 pi), where
-    the modulo is d + pi, d + pi - 2 pi (exact, Sterbenz) or d + pi + 2 pi (as numpy rounds
-    it); a test holds the two equal bit for bit."""
-    shifted = difference + np.pi
-    np.subtract(shifted, 2.0 * np.pi, out=shifted, where=shifted >= 2.0 * np.pi)
-    np.add(shifted, 2.0 * np.pi, out=shifted, where=shifted < 0.0)  # none of the above
-    shifted -= np.pi
-    return shifted
 
 
 def advance_scenes(
@@ -156,7 +144,7 @@ class Scenes:
             column = columns[feature]  # (N, B)
             relative = column[None, :, :] - column[:, None, :]  # (N, N, B): [i, j] = j - i
             if feature == 2:
-                relative = wrap_heading_difference(relative)
+                relative = wrap_angle(relative)
             relative = _off_diagonal(relative)  # (N, N-1, B)
             if present is not None:
                 relative *= present

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from carlo_lite import CarLimits, StraightRoad, World
-from carlo_lite.kinematics import arc_length, bicycle_step
+from carlo_lite.kinematics import arc_length, bicycle_step, wrap_angle
 
 
 def make_world(xy, heading, speed, **kwargs) -> World:
@@ -138,3 +138,23 @@ def test_bicycle_step_pure_function_does_not_modify_inputs():
     controls = np.array([[0.1, 1.0]])
     bicycle_step(xy, heading, speed, controls, np.array([2.7]), 0.1, 40.0)
     assert xy.tolist() == [[1.0, 2.0]] and speed.tolist() == [3.0] and heading.tolist() == [0.1]
+
+
+def test_wrap_angle_is_the_modulo_bit_for_bit():
+    """wrap_angle skips numpy's slow float modulo for angles in (-3 pi, 3 pi), what a step or a
+    difference of wrapped angles produces; over that range and its edges (and beyond, where it
+    takes the modulo) the result is `(a + pi) % (2 pi) - pi` bit for bit, zero's sign included."""
+    rng = np.random.default_rng(0)
+    headings = rng.uniform(-np.pi, np.pi, (2, 200_000))
+    edges = np.array([-np.pi, np.nextafter(np.pi, 0.0), 0.0, -0.0, 1e-300, -1e-300])
+    differences = np.concatenate(
+        [headings[1] - headings[0], np.subtract.outer(edges, edges).ravel()]
+    )  # (-2 pi, 2 pi)
+    steps = rng.uniform(-3.0 * np.pi + 1e-9, 3.0 * np.pi - 1e-9, 200_000)
+    far = rng.uniform(-40.0, 40.0, 1000)  # the modulo's own path
+    for angles in (differences, steps, far, np.array(2.5), np.array([])):
+        want = (angles + np.pi) % (2.0 * np.pi) - np.pi
+        got = wrap_angle(angles)
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(np.signbit(got), np.signbit(want))
+        assert np.all((got >= -np.pi) & (got < np.pi))

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from scenarios import ENV_MODULES, FAMILIES, VERSIONS, halting_car_v3
-from scenarios.scenes import wrap_heading_difference
 from scenarios.vector_env import ScenarioVectorEnv
 
 INFO_KEYS = ("role", "attention", "interaction", "collided", "off_road")
@@ -227,19 +226,3 @@ def test_bad_arguments():
         env.reset(seed=0, options={"cse": "go"})
     with pytest.warns(UserWarning, match="latest version"):
         assert ScenarioVectorEnv("halting_car", 1).version is FAMILIES["halting_car"][-1]
-
-
-def test_the_fast_heading_wrap_is_the_modulo_bit_for_bit():
-    """Observations wrap heading differences without numpy's slow float modulo; over the whole
-    range a difference of two headings in [-pi, pi) can take, and its edges, the result is
-    `(d + pi) % (2 pi) - pi` bit for bit (signs of zero included)."""
-    rng = np.random.default_rng(0)
-    headings = rng.uniform(-np.pi, np.pi, (2, 200_000))
-    edges = np.array([-np.pi, np.nextafter(np.pi, 0.0), 0.0, -0.0, 1e-300, -1e-300])
-    first = np.concatenate([headings[0], np.repeat(edges, len(edges))])
-    second = np.concatenate([headings[1], np.tile(edges, len(edges))])
-    difference = second - first
-    want = (difference + np.pi) % (2.0 * np.pi) - np.pi
-    got = wrap_heading_difference(difference.copy())
-    np.testing.assert_array_equal(got, want)
-    np.testing.assert_array_equal(np.signbit(got), np.signbit(want))
