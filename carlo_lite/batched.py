@@ -286,37 +286,47 @@ class BatchedWorld:
     # --- queries ----------------------------------------------------------------------------
     def bounding_boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds (low (B, N, 2), high (B, N, 2)) [m] of the car bodies."""
-        cos, sin = np.abs(np.cos(self._heading)), np.abs(np.sin(self._heading))
-        half = np.empty_like(self._xy)  # (B*N, 2)
-        half[:, 0] = 0.5 * (self._flat_length * cos + self._flat_width * sin)
-        half[:, 1] = 0.5 * (self._flat_length * sin + self._flat_width * cos)
-        shape = (*self._shape, 2)
-        return (self._xy - half).reshape(shape), (self._xy + half).reshape(shape)
+        (low_x, low_y), (high_x, high_y) = self._boxes()
+        return np.stack([low_x.T, low_y.T], axis=-1), np.stack([high_x.T, high_y.T], axis=-1)
+
+    def _boxes(self) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+        """The bodies' axis-aligned bounds with the scenes innermost, for long vectorised loops
+        in the checks: ((low x, low y), (high x, high y)), (N, B) each [m]."""
+        num_scenes, num_cars = self._shape
+        x, y, heading = (
+            np.ascontiguousarray(values.reshape(num_scenes, num_cars).T)
+            for values in (self._xy[:, 0], self._xy[:, 1], self._heading)
+        )  # (N, B) each
+        cos, sin = np.abs(np.cos(heading)), np.abs(np.sin(heading))
+        length, width = self.length_m[:, None], self.width_m[:, None]  # (N, 1)
+        half_x = 0.5 * (length * cos + width * sin)
+        half_y = 0.5 * (length * sin + width * cos)
+        return (x - half_x, y - half_y), (x + half_x, y + half_y)
 
     def incidents(self) -> tuple[np.ndarray, np.ndarray]:
         """(collided (B, N), off_road (B, N)) bool: the active car overlaps another active car
         of its scene; some part of the active car is outside the road edges. One bounding-box
         computation for both: the cheapest way to check every step."""
-        low, high = self.bounding_boxes()
-        return self._collisions(low, high), self._off_road(low, high)
+        boxes = self._boxes()
+        return self._collisions(*boxes), self._off_road(*boxes)
 
     def collision_pairs(self, scene: int) -> np.ndarray:
         """Pairs (K, 2), i < j, of active cars of `scene` whose bodies overlap."""
-        low, high = self.bounding_boxes()
-        return self._scene_pairs(scene, low[scene], high[scene])
+        return self._scene_pairs(scene, *self._boxes())
 
-    def _scene_pairs(self, scene: int, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    def _scene_pairs(self, scene: int, low: tuple, high: tuple) -> np.ndarray:
         cars = slice(scene * self.num_cars, (scene + 1) * self.num_cars)
         return self._checker.collision_pairs(
-            low, high, self._xy[cars], self._heading[cars], self._active[scene]
+            *_scene_boxes(scene, low, high),
+            self._xy[cars],
+            self._heading[cars],
+            self._active[scene],
         )
 
-    def _candidate_scenes(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    def _candidate_scenes(self, low: tuple, high: tuple) -> np.ndarray:
         """Scenes with at least one pair i < j of active cars with overlapping bounding boxes
-        (B,) bool. Computed with the scenes innermost, (N, N, B), for long vectorised loops."""
-        (low_x, low_y), (high_x, high_y) = (
-            np.ascontiguousarray(bound.transpose(2, 1, 0)) for bound in (low, high)
-        )  # (N, B) each
+        (B,) bool, computed over (N, N, B)."""
+        (low_x, low_y), (high_x, high_y) = low, high  # (N, B) each
         close = (
             self._upper[:, :, None]  # pairs i < j
             & (low_x[:, None] <= high_x[None])
@@ -329,21 +339,22 @@ class BatchedWorld:
             close &= active[:, None] & active[None]
         return close.any(axis=(0, 1))
 
-    def _collisions(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    def _collisions(self, low: tuple, high: tuple) -> np.ndarray:
         hit = np.zeros(self._shape, dtype=bool)
         for scene in np.nonzero(self._candidate_scenes(low, high))[0].tolist():
-            hit[scene, self._scene_pairs(scene, low[scene], high[scene]).ravel()] = True
+            hit[scene, self._scene_pairs(scene, low, high).ravel()] = True
         return hit
 
-    def _off_road(self, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    def _off_road(self, low: tuple, high: tuple) -> np.ndarray:
         d_min, d_max = self.road.lateral_bounds
         num_cars = self.num_cars
-        x = self._xy[:, 0].reshape(self._shape)  # (B, N)
+        (_, low_y), (_, high_y) = low, high  # (N, B) each
+        centre_x = self._xy[:, 0].reshape(self._shape)  # (B, N)
         inside = (
-            (low[..., 1].min(axis=1) > d_min)
-            & (high[..., 1].max(axis=1) < d_max)
-            & (x.min(axis=1) >= 0.0)
-            & (x.max(axis=1) <= self.road.length_m)
+            (low_y.min(axis=0) > d_min)
+            & (high_y.max(axis=0) < d_max)
+            & (centre_x.min(axis=1) >= 0.0)
+            & (centre_x.max(axis=1) <= self.road.length_m)
         )  # (B,) every box strictly between the straight edges: nothing off the road
         off = np.zeros(self._shape, dtype=bool)
         if inside.all():
@@ -352,10 +363,18 @@ class BatchedWorld:
             cars = slice(scene * num_cars, (scene + 1) * num_cars)
             xy, active = self._xy[cars], self._active[scene]
             touching = self._checker.edge_contacts(
-                low[scene], high[scene], xy, self._heading[cars], active
+                *_scene_boxes(scene, low, high), xy, self._heading[cars], active
             )
             off[scene] = (touching | (self.road.lane_index(xy) < 0)) & active
         return off
+
+
+def _scene_boxes(scene: int, low: tuple, high: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """One scene's bounds (low (N, 2), high (N, 2)) from the (N, B) ones."""
+    return (
+        np.column_stack([low[0][:, scene], low[1][:, scene]]),
+        np.column_stack([high[0][:, scene], high[1][:, scene]]),
+    )
 
 
 def _readonly(array: np.ndarray) -> np.ndarray:
