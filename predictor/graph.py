@@ -27,7 +27,7 @@ take a dense path: its edge list is exactly the compact layout (B, N, N-1) flatt
 over an agent's edges is a sum over the last axis, and the gathers of an edge's tail or head
 values keep their `index_select` forward but sum densely backward, with no scatter
 (`index_add`) either way. Same values to float rounding (sums in another order), several
-times faster per call at the scenarios' shapes (benchmarks/README.md, issue 13).
+times faster per call at the scenarios' shapes (benchmarks/README.md).
 """
 
 from __future__ import annotations

@@ -167,6 +167,7 @@ def test_cli_sharded_smoke_refusals_and_tools_on_the_index(tmp_path, sharded_pai
     for data in (index, single):
         evaluated = run_tool("evaluate.py", "--baseline", "const_vel", "--data", data)
         assert evaluated.returncode == 0, evaluated.stderr
+        assert "evaluate const_vel" in evaluated.stderr  # its progress bar
         tables.append(evaluated.stdout.rsplit(" in ", 1)[0])  # without the timing
     assert tables[0] == tables[1]
 

@@ -97,6 +97,9 @@ def test_quick_run_writes_markdown_with_tables(quick):
     first = quick["first"]
     assert first.stdout.count("\n") == 1 and first.stdout.startswith("wrote ")
     assert "0 failed" in first.stdout and "runs:" in first.stderr  # tqdm over jobs
+    # no silent phase after the bar: status lines while the results are gathered and written
+    assert "reproduce: collecting the results of" in first.stderr
+    assert "reproduce: writing the report, its figures and results.json to" in first.stderr
     text = quick["markdown_first"]
     for section in (
         "## How this was produced",

@@ -117,6 +117,18 @@ def assert_same_weights(a: dict, b: dict) -> None:
         assert torch.equal(a[key], b[key]), key
 
 
+def test_no_silent_phase_in_training(braking_file: Path, tmp_path: Path, capsys):
+    """What takes seconds before and between the epoch bar's updates says so on stderr: building
+    the model and optimiser (a line), the highway refit and the validation (the bar's note)."""
+    model_cfg, train_cfg = make_configs(
+        "ours", TINY_MODEL, preset="agent", epochs=1, batch_size=3, seed=0
+    )
+    train(braking_file, model_cfg, train_cfg, tmp_path / "run", progress=True)
+    err = capsys.readouterr().err
+    assert "train ours: building the model and optimiser on 8 training scenes\n" in err
+    assert "epoch 1: refitting the highway" in err and "epoch 1: validating" in err
+
+
 def test_same_seed_same_run_and_files(braking_file: Path, tmp_path: Path):
     model_cfg, train_cfg = tiny_configs(epochs=2)
     first = train(braking_file, model_cfg, train_cfg, tmp_path / "a", progress=False)
