@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 from pipeline.report.records import BASELINES
+from predictor.presets import DEFAULT_PRESET
 
 TRAINED_VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct")
 ALL_VARIANTS = (*TRAINED_VARIANTS, *BASELINES)
@@ -23,7 +24,7 @@ QUICK_MAX_MAJOR = 10  # a quick protocol shrinks every setting to at most 10 maj
 QUICK_MIN_MINOR = 2
 # A reproduction without arguments: this project's model (the agent preset, docs/PREDICTOR.md)
 # on every setting, and the paper's literal model beside it on the main settings.
-REPRODUCTION_PRESET = "agent"
+REPRODUCTION_PRESET = DEFAULT_PRESET
 REPRODUCTION_COMPARED = "paper@main"
 
 
@@ -104,7 +105,7 @@ class Protocol:
     num_test: int = NUM_TEST  # test trajectories per case
     data_seed: int = DATA_SEED
     quick: bool = False  # cap every setting at QUICK_MAX_MAJOR major trajectories
-    preset: str = "paper"  # predictor.presets.PRESETS: the model and training configuration
+    preset: str = DEFAULT_PRESET  # predictor.presets.PRESETS: the model and training config
     # other presets whose runs of `compare_variants` the report shows beside the preset's own
     # (same settings, seeds and epochs), e.g. the paper's literal version beside a default
     compare_presets: tuple[str, ...] = ()

@@ -85,7 +85,7 @@ PRESETS["crowd"] = (
     },
     {**PRESETS["agent"][1], "batch_size": 16, "epochs": 20},
 )
-DEFAULT_PRESET = "paper"  # the preset make_configs and tools/train.py use unless told
+DEFAULT_PRESET = "agent"  # the preset make_configs and tools/train.py use unless told
 # the ModelConfig and TrainConfig fields some preset sets: where the presets differ
 PRESET_FIELDS: tuple[tuple[str, ...], tuple[str, ...]] = (
     tuple(sorted({name for model, _ in PRESETS.values() for name in model})),

@@ -34,7 +34,7 @@ def batch(tmp_path_factory):
 
 def twin_models():
     """Two equal models (same seed), the second with a compiled graph step."""
-    model_cfg, train_cfg = make_configs("ours", TINY_MODEL)
+    model_cfg, train_cfg = make_configs("ours", TINY_MODEL, preset="paper")
     models = []
     for _ in range(2):
         torch.manual_seed(0)
@@ -82,7 +82,7 @@ def test_each_compiled_model_starts_from_an_empty_dynamo_cache(batch):
     code = SmoothAttentionPredictor._run.__code__
     counts = []
     for variant in ("ours", "average"):  # different graphs: each variant compiles its own
-        model_cfg, train_cfg = make_configs(variant, TINY_MODEL)
+        model_cfg, train_cfg = make_configs(variant, TINY_MODEL, preset="paper")
         torch.manual_seed(0)
         model = SmoothAttentionPredictor(model_cfg)
         compile_graph_step(model)
@@ -100,7 +100,7 @@ def test_every_batch_size_of_a_run_is_compiled_past_dynamos_default_limit(tmp_pa
     from torch._dynamo.eval_frame import _debug_get_cache_entry_list
 
     dataset = TrajectoryDataset(write_braking_dataset(tmp_path / "braking.h5"), "train")
-    model_cfg, train_cfg = make_configs("ours", TINY_MODEL)
+    model_cfg, train_cfg = make_configs("ours", TINY_MODEL, preset="paper")
     torch.manual_seed(0)
     model = SmoothAttentionPredictor(model_cfg)
     compile_graph_step(model)
@@ -117,7 +117,9 @@ def test_every_batch_size_of_a_run_is_compiled_past_dynamos_default_limit(tmp_pa
 
 def test_a_compiled_run_trains_deterministically_and_its_checkpoint_loads_eager(tmp_path: Path):
     path = write_braking_dataset(tmp_path / "braking.h5")
-    model_cfg, train_cfg = make_configs("ours", TINY_MODEL, epochs=1, compile_graph_step=True)
+    model_cfg, train_cfg = make_configs(
+        "ours", TINY_MODEL, epochs=1, compile_graph_step=True, preset="paper"
+    )
     for name in ("run", "again"):  # the same seed and arguments: the same training
         result = train(path, model_cfg, train_cfg, tmp_path / name, progress=False)
         assert result.epochs == 1
@@ -135,7 +137,9 @@ def test_a_compiled_run_trains_deterministically_and_its_checkpoint_loads_eager(
 def test_no_compiler_is_refused_before_anything_is_written(tmp_path: Path, monkeypatch):
     path = write_braking_dataset(tmp_path / "braking.h5")
     monkeypatch.setenv("CXX", "no-such-compiler-here")
-    model_cfg, train_cfg = make_configs("ours", TINY_MODEL, epochs=1, compile_graph_step=True)
+    model_cfg, train_cfg = make_configs(
+        "ours", TINY_MODEL, epochs=1, compile_graph_step=True, preset="paper"
+    )
     with pytest.raises(RunError, match="needs a C.. compiler"):
         train(path, model_cfg, train_cfg, tmp_path / "run", progress=False)
     assert not (tmp_path / "run").exists()
@@ -143,7 +147,7 @@ def test_no_compiler_is_refused_before_anything_is_written(tmp_path: Path, monke
 
 def test_the_switch_is_not_part_of_a_run_key():
     """How the graph step is computed, not what: a compiled run has the eager run's key."""
-    _, eager = make_configs("ours", TINY_MODEL)
-    _, compiled = make_configs("ours", TINY_MODEL, compile_graph_step=True)
+    _, eager = make_configs("ours", TINY_MODEL, preset="paper")
+    _, compiled = make_configs("ours", TINY_MODEL, compile_graph_step=True, preset="paper")
     assert "compile_graph_step" not in config_key(eager)
     assert config_key(compiled) == config_key(eager)

@@ -38,7 +38,7 @@ def test_demo_writes_every_output_and_reports_both_predictors(tmp_path):
     out.mkdir()
     (out / ".demo-output").write_text("an earlier demo's")
     (out / "stale.txt").write_text("from an earlier run")
-    completed = run_tool("demo.py", "--out", out, "--epochs", "1", timeout=600)
+    completed = run_tool("demo.py", "--out", out, "--epochs", "3", timeout=600)
     assert completed.returncode == 0, completed.stderr
     last = completed.stdout.strip().splitlines()[-1]
     assert last.startswith("demo done in ") and last.endswith(f"results in {out}/")
@@ -76,9 +76,16 @@ def test_demo_writes_every_output_and_reports_both_predictors(tmp_path):
     ade = float(error[test.valid[:, meta.num_observed :, :2]].mean())
     const_vel = json.loads((out / "eval_const_vel.json").read_text())
     assert np.isclose(const_vel["main_agents"]["overall"]["ade"], ade, rtol=1e-5)
+    assert f"vs {ade:.2f} m (constant velocity)" in last
+
+    # the default preset learns: after 3 epochs it beats constant velocity on the main cars and
+    # on all cars, and attends most to the labelled car in at least half of the labelled steps
     ours = json.loads((out / "run_ours" / "eval.json").read_text())
-    assert np.isfinite(ours["main_agents"]["overall"]["ade"])
-    assert f"{ade:.2f} m (constant velocity)" in last
+    everyone = np.linalg.norm(pred - truth, axis=-1)[test.valid[:, meta.num_observed :]].mean()
+    assert np.isclose(const_vel["all_agents"]["overall"]["ade"], everyone, rtol=1e-5)
+    assert ours["main_agents"]["overall"]["ade"] < ade
+    assert ours["all_agents"]["overall"]["ade"] < everyone
+    assert ours["attention_accuracy"]["overall"]["accuracy"] >= 0.5
 
 
 def assert_frames_explain_themselves(gif) -> None:

@@ -124,7 +124,7 @@ def test_data_without_labels_refuses_the_oracles_in_one_line(tmp_path: Path) -> 
     path = _unlabelled(tmp_path)
     with pytest.raises(EvaluationError, match="reads attention labels, which the unit_test"):
         evaluate_baseline("ridge_labelled", path, "test")
-    model_cfg, train_cfg = make_configs("correct", epochs=1, batch_size=4)
+    model_cfg, train_cfg = make_configs("correct", epochs=1, batch_size=4, preset="paper")
     with pytest.raises(RunError, match="variant correct.*does not record") as err:
         train(path, model_cfg, train_cfg, tmp_path / "run", progress=False)
     assert "\n" not in str(err.value) and not (tmp_path / "run").exists()

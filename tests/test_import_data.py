@@ -189,7 +189,7 @@ def test_single_pedestrian_windows_train_and_evaluate(tmp_path: Path) -> None:
     dataset = TrajectoryDataset(path, "train")
     assert dataset.all().num_agents == 2 and not dataset.all().valid[:, :, 1].any()
     assert not dataset.data.focal[:, 1].any()
-    model_cfg, train_cfg = make_configs("ours", epochs=1, batch_size=2)
+    model_cfg, train_cfg = make_configs("ours", epochs=1, batch_size=2, preset="paper")
     train(path, model_cfg, train_cfg, tmp_path / "run", progress=False)
     scores = evaluate_run(tmp_path / "run", path, "test").scores["main_agents"]["overall"]
     assert scores["count"] == 3 * 12 and scores["ade"] is not None  # 3 windows, 12 steps

@@ -168,11 +168,11 @@ def test_gaussian_samples_have_the_predicted_covariance():
 
 
 def test_variant_configs():
-    model_cfg, train_cfg = make_configs("correct", {"edge_hidden": 4}, epochs=3)
+    model_cfg, train_cfg = make_configs("correct", {"edge_hidden": 4}, preset="paper", epochs=3)
     assert model_cfg.attention_mode == "oracle" and model_cfg.edge_hidden == 4
     assert train_cfg.beta2 == 0 and train_cfg.sequence_loss and train_cfg.epochs == 3
     assert not make_configs("s_attn")[1].sequence_loss
-    assert make_configs("ours")[1].beta2 == 0.01
+    assert make_configs("ours", preset="paper")[1].beta2 == 0.01
     with pytest.raises(ValueError, match="unknown variant"):
         make_configs("bogus")
     with pytest.raises(ValueError, match="beta2"):

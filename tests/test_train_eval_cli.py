@@ -41,7 +41,7 @@ NPZ_KEYS = {
 
 @pytest.fixture(scope="module")
 def smoke(tmp_path_factory) -> dict:
-    """Train 2 epochs and evaluate once, in subprocesses."""
+    """Train 2 epochs of the paper preset and evaluate once, in subprocesses."""
     root = tmp_path_factory.mktemp("smoke")
     data = write_braking_dataset(root / "braking.h5", counts=(6, 3, 4))
     run = root / "run"
@@ -57,6 +57,8 @@ def smoke(tmp_path_factory) -> dict:
         "0",
         "--batch-size",
         "4",
+        "--preset",
+        "paper",
         *TINY,
     )
     evaluated = run_tool(

@@ -281,7 +281,7 @@ def test_an_interrupt_says_what_the_directory_holds(data, tmp_path, monkeypatch)
     from predictor.presets import make_configs
 
     tiny = {"embed_dim": 8, "edge_hidden": 8, "node_hidden": 12, "attn_dim": 4}
-    configs = make_configs("ours", tiny, epochs=2, batch_size=3)  # 3 steps an epoch
+    configs = make_configs("ours", tiny, epochs=2, batch_size=3, preset="paper")  # 3 steps an epoch
     run = tmp_path / "run"
     train = predictor.training.train
     train(data, *configs, run, progress=False)
@@ -291,7 +291,7 @@ def test_an_interrupt_says_what_the_directory_holds(data, tmp_path, monkeypatch)
             train(data, *configs, run, overwrite=True, progress=False)
     assert (info.value.outcome, info.value.epoch, info.value.epochs) == (RESTORED, 2, 2)
     assert isinstance(info.value, KeyboardInterrupt)
-    more = make_configs("ours", tiny, epochs=4, batch_size=3)
+    more = make_configs("ours", tiny, epochs=4, batch_size=3, preset="paper")
     with monkeypatch.context() as patch:
         interrupt_at_step(patch, 2)  # inside epoch 3
         with pytest.raises(TrainingInterrupted) as info:

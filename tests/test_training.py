@@ -93,7 +93,7 @@ def braking_file(tmp_path: Path) -> Path:
 def test_loss_falls_on_a_tiny_set(braking_file: Path):
     dataset = TrajectoryDataset(braking_file, "train")
     batch = collate_batch([dataset[i] for i in range(len(dataset))])
-    model_cfg, train_cfg = make_configs("ours", TINY_MODEL, lr=1e-2)
+    model_cfg, train_cfg = make_configs("ours", TINY_MODEL, lr=1e-2, preset="paper")
     torch.manual_seed(0)
     model = SmoothAttentionPredictor(model_cfg)
     optimizer = torch.optim.Adam(model.parameters(), lr=train_cfg.lr)
@@ -104,7 +104,9 @@ def test_loss_falls_on_a_tiny_set(braking_file: Path):
 
 
 def tiny_configs(variant: str = "ours", epochs: int = 3, seed: int = 0):
-    return make_configs(variant, TINY_MODEL, epochs=epochs, batch_size=3, seed=seed, lr=3e-3)
+    return make_configs(
+        variant, TINY_MODEL, epochs=epochs, batch_size=3, seed=seed, lr=3e-3, preset="paper"
+    )
 
 
 def weights(run: Path, name: str = "last.pt") -> dict:
@@ -228,7 +230,9 @@ def test_run_directory_rules(braking_file: Path, tmp_path: Path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(RunError, match="nothing to resume in .*empty: it has no last.pt"):
         train(braking_file, model_cfg, train_cfg, tmp_path / "empty", resume=True, progress=False)
-    changed = make_configs("ours", TINY_MODEL, epochs=1, batch_size=3, seed=0, lr=1e-2)
+    changed = make_configs(
+        "ours", TINY_MODEL, epochs=1, batch_size=3, seed=0, lr=1e-2, preset="paper"
+    )
     with pytest.raises(RunError, match="lr"):
         train(braking_file, changed[0], changed[1], run, resume=True, progress=False)
 
@@ -241,9 +245,9 @@ def test_zero_epochs_is_refused():
 @pytest.mark.parametrize("value", [math.inf, -math.inf, math.nan])
 def test_non_finite_settings_are_refused_before_training(value):
     with pytest.raises(ValueError, match=r"TrainConfig.lr must be finite"):
-        make_configs("ours", TINY_MODEL, lr=value)
+        make_configs("ours", TINY_MODEL, lr=value, preset="paper")
     with pytest.raises(ValueError, match=r"ModelConfig.attention_gain must be finite"):
-        make_configs("ours", {**TINY_MODEL, "attention_gain": value})
+        make_configs("ours", {**TINY_MODEL, "attention_gain": value}, preset="paper")
 
 
 def test_seeds_outside_int64_are_refused():
@@ -391,7 +395,14 @@ def test_bucketing_changes_nothing_where_every_scene_has_the_same_agent_count(
     model_cfg, train_cfg = tiny_configs(epochs=2)
     assert train_cfg.bucket_batches  # the default
     plain = make_configs(
-        "ours", TINY_MODEL, epochs=2, batch_size=3, seed=0, lr=3e-3, bucket_batches=False
+        "ours",
+        TINY_MODEL,
+        epochs=2,
+        batch_size=3,
+        seed=0,
+        lr=3e-3,
+        bucket_batches=False,
+        preset="paper",
     )
     train(braking_file, model_cfg, train_cfg, tmp_path / "bucketed", progress=False)
     train(braking_file, plain[0], plain[1], tmp_path / "plain", progress=False)
