@@ -87,9 +87,6 @@ class GraphAttention:
         if self.role_pair is None or steps.role_index is None:
             return None
         if steps.pair_bias is None:
-            roles = steps.role_index
-            if self.config.role_bias_by_group:
-                roles = self._groups_of(roles, roles)
-            flat = roles.flatten()  # (B*N,)
+            flat = steps.role_index.flatten()  # (B*N,)
             steps.pair_bias = self.role_pair[flat[steps.graph.tail], flat[steps.graph.head]]
         return steps.pair_bias

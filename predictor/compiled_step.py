@@ -1,7 +1,7 @@
 """Training through a compiled graph step (`TrainConfig.compile_graph_step`).
 
 A training step is ~50-60 % fixed cost at the agent preset's batch of 4 scenes: one scene costs
-half as much as eight (`benchmarks/experiments/step_scaling.py`), so the time goes into the
+half as much as eight (benchmarks/README.md, "A compiled graph step"), so the time goes into the
 ~13,000 small torch calls of a forward pass and their backward, not into arithmetic.
 `torch.compile` of the graph step (`SmoothAttentionPredictor._run`, called once per observed
 chunk and once per fed-back step) fuses them; with Dynamo's `allow_rnn` the three LSTMs are

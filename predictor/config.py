@@ -22,6 +22,8 @@ predictor.stored_config.
 from __future__ import annotations
 
 import math
+import re
+from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
@@ -41,7 +43,6 @@ AGENT_FRAME_ONLY = (
     "standardise",
     "edge_velocity",
     "offset_scale",
-    "acceleration_input",
     "rollout_prior",
 )
 # ModelConfig switches of the highway (predictor.highway), all off at their defaults: a variant
@@ -70,20 +71,58 @@ def require_finite(config: object) -> None:
             raise ValueError(f"{type(config).__name__}.{item.name} must be finite, got {value}")
 
 
-def require_rules(
-    config: object, choices: dict[str, tuple], bounds: dict[str, tuple[bool, str]]
-) -> None:
-    """ValueError naming the first field of a config dataclass whose value is not one of its
-    `choices` (field -> allowed values) or breaks its bound (field -> (holds, rule))."""
+@dataclass(frozen=True)
+class Rule:
+    """What values a config field allows: `holds(value, config)`, described by `text` (which may
+    name other fields as {config.NAME}); `choices` for a field with a fixed set of values."""
+
+    text: str
+    holds: Callable[[Any, Any], bool]
+    choices: tuple | None = None
+
+    def describe(self, config: Any = None) -> str:
+        """The rule as a user reads it ("one of ('scene', 'agent')", ">= 1", ...)."""
+        if config is None:  # the rule alone: "> min_std_m", not "> min_std_m ({...})"
+            return re.sub(r" \(\{config\.\w+\}\)", "", self.text)
+        return self.text.format(config=config)
+
+
+def one_of(values: tuple) -> Rule:
+    return Rule(f"one of {values}", lambda value, _: value in values, values)
+
+
+def at_least(low: float) -> Rule:
+    return Rule(f">= {low:g}", lambda value, _: value >= low)
+
+
+def above(low: float) -> Rule:
+    return Rule(f"> {low:g}", lambda value, _: value > low)
+
+
+def check_rules(config: Any, rules: dict[str, Rule]) -> None:
+    """ValueError naming the first field of a config dataclass that breaks its rule."""
     kind = type(config).__name__
-    for name, allowed in choices.items():
-        if getattr(config, name) not in allowed:
-            raise ValueError(
-                f"{kind}.{name} must be one of {allowed}, got {getattr(config, name)!r}"
-            )
-    for name, (holds, rule) in bounds.items():
-        if not holds:
-            raise ValueError(f"{kind}.{name} must be {rule}, got {getattr(config, name)}")
+    for name, rule in rules.items():
+        value = getattr(config, name)
+        if not rule.holds(value, config):
+            shown = repr(value) if rule.choices is not None else value
+            raise ValueError(f"{kind}.{name} must be {rule.describe(config)}, got {shown}")
+
+
+def check_needs(
+    config: Any, needs: dict[str, tuple[tuple[str, Callable[[Any], bool]], ...]]
+) -> None:
+    """ValueError naming the first field that is not at its default while what it needs (a
+    description and a test of the config) does not hold."""
+    defaults = {item.name: item.default for item in fields(config)}
+    for name, requirements in needs.items():
+        value = getattr(config, name)
+        if value == defaults[name]:
+            continue
+        for requirement, holds in requirements:
+            if not holds(config):
+                shown = "" if isinstance(value, bool) else f"={value!r}"
+                raise ValueError(f"{type(config).__name__}.{name}{shown} needs {requirement}")
 
 
 @dataclass(frozen=True)
@@ -160,14 +199,6 @@ class ModelConfig:
     # (Double Merge: main_green, main_brown), and which colour is ahead is the case, so in the
     # rare case a role input carries the common case's behaviour.
     role_input: bool = True
-    # The agent's own acceleration p^t - 2 p^{t-1} + p^{t-2} (agent frame, in units of the
-    # training split's RMS one-step deviation `offset_std`) as an input of F_self next to its
-    # velocity. Without it the model must difference consecutive velocity inputs, where a
-    # lane change's acceleration is ~0.1 of the lateral velocity's spread (and ~0.002 of the
-    # longitudinal one): measured, the agent preset then predicted the first rollout step no
-    # better than constant velocity (main cars 21-47 mm, ridge with accelerations 2 mm).
-    # Agent frame only.
-    acceleration_input: bool = False
     # Factor on the learned attention scores <W^T F_attn(o_ii), o_ij> before the softmax. With
     # ~21 other cars the attention starts near-uniform, where a score's gradient is scaled by
     # its weight (~1/21); a gain makes the same parameter step move the scores further (as
@@ -244,24 +275,6 @@ class ModelConfig:
     # the refitted maps read it from the first epoch; the scores can still learn to leave it.
     # A fixed prior, not a parameter. Ignored without roles and by fixed attention.
     role_balanced_attention: bool = False
-    # With attended_refit and learned attention: fit the highway's maps once, before the first
-    # epoch, with the attention's prior (equal weights over each agent's usable neighbours, per
-    # role with role_balanced_attention) instead of every epoch with the learned attention,
-    # under which a map is fitted on the scenes where the attention chose it and the attention
-    # can learn to pick maps by scene (Halting Car v1's switch, docs/PREDICTOR.md).
-    refit_on_prior: bool = False
-    # With highway_role_groups: the role_attention_bias per pair of role groups (attending,
-    # attended) instead of roles, so roles that drive alike also attend alike and pool the
-    # bias's gradient (Double Merge's colours). Needs role_attention_bias and
-    # highway_role_groups.
-    role_bias_by_group: bool = False
-    # Which roles share the highway's maps: comma-separated group per role ("0,0,1": the first
-    # two roles pool their maps); "" gives each role its own. Roles that drive alike but swap
-    # places between cases (Double Merge's colours: the rear car in one case, the front car in
-    # the other) fitted per role see each place in one case only; pooled, each relation's map
-    # sees both (ridge with the labelled car per relation: 1.369 m per colour, 0.513 m pooled).
-    # Needs num_roles, one group per role.
-    highway_role_groups: str = ""
     # --- the neighbour graph (predictor.graph; fixed per window, edges only between agents
     # that are present; the edge RNN and the attention cost O(edges)) ---
     # "all": every other agent (the paper's complete graph, N(N-1) edges); "radius": the agents
@@ -281,70 +294,8 @@ class ModelConfig:
 
     def __post_init__(self) -> None:
         require_finite(self)
-        choices = {
-            "frame": FRAMES,
-            "offset_scale": OFFSET_SCALES,
-            "rollout_prior": ROLLOUT_PRIORS,
-            "mean_prior": MEAN_PRIORS,
-            "attention_mode": ATTENTION_MODES,
-            "neighbours": NEIGHBOURS,
-            "attended_fit": ATTENDED_FITS,
-        }
-        at_least_one = ("embed_dim", "edge_hidden", "node_hidden", "attn_dim", "chunk_steps")
-        positive = ("position_scale_m", "interaction_scale_m", "step_scale_m", "min_std_m")
-        bounds = {  # field -> (holds, rule)
-            **{name: (getattr(self, name) >= 1, ">= 1") for name in at_least_one},
-            **{name: (getattr(self, name) > 0, "> 0") for name in positive},
-            "attention_gain": (self.attention_gain > 0, "> 0"),
-            "log_std_gain": (self.log_std_gain > 0, "> 0"),
-            "init_std_m": (self.init_std_m > self.min_std_m, f"> min_std_m ({self.min_std_m})"),
-            "num_roles": (self.num_roles >= ROLES_FROM_DATA, f">= {ROLES_FROM_DATA}"),
-            "neighbour_radius_m": (self.neighbour_radius_m > 0, "> 0"),
-            "neighbour_k": (self.neighbour_k >= 1, ">= 1"),
-            "highway_steps": (self.highway_steps == 0 or self.highway_steps >= 2, "0 or >= 2"),
-            "highway_horizon": (self.highway_horizon >= 1, ">= 1"),
-            "highway_min_std": (self.highway_min_std >= 0, ">= 0"),
-        }
-        require_rules(self, choices, bounds)
-        agent, relations = self.frame == "agent", self.attended_fit == "edge_relations"
-        needs = (  # (switch, what it needs holds, what it needs), checked when not at its default
-            *((name, agent, "frame='agent'") for name in AGENT_FRAME_ONLY),
-            ("highway_steps", self.rollout_prior == "anchored", "rollout_prior='anchored'"),
-            ("highway_attended", self.highway_steps > 0, "highway_steps"),
-            ("attended_refit", self.highway_attended, "highway_attended"),
-            ("attended_fit", self.attended_refit, "attended_refit"),
-            ("attended_fit", self.highway_relation or not relations, "highway_relation"),
-            ("highway_relation", self.attended_refit, "attended_refit"),
-            ("refit_on_prior", self.attended_refit, "attended_refit"),
-            ("highway_zero_at_cv", self.attended_refit, "attended_refit"),
-            ("highway_min_std", self.attended_refit, "attended_refit"),
-            ("highway_head_groups", relations, "attended_fit='edge_relations'"),
-            ("role_bias_by_group", self.role_attention_bias, "role_attention_bias"),
-            ("role_bias_by_group", bool(self.highway_role_groups), "highway_role_groups"),
-        )
-        defaults = {item.name: item.default for item in fields(self)}
-        for name, holds, requirement in needs:
-            value = getattr(self, name)
-            if value != defaults[name] and not holds:
-                shown = "" if isinstance(value, bool) else f"={value!r}"
-                raise ValueError(f"ModelConfig.{name}{shown} needs {requirement}")
-        if self.highway_role_groups:
-            self._check_role_groups()
-
-    def _check_role_groups(self) -> None:
-        """highway_role_groups: comma-separated group numbers 0, 1, ... without gaps."""
-        parts = self.highway_role_groups.split(",")
-        if not all(p.strip().isdigit() for p in parts):
-            raise ValueError(
-                "ModelConfig.highway_role_groups must be comma-separated group numbers, "
-                f"got {self.highway_role_groups!r}"
-            )
-        groups = sorted({int(p) for p in parts})
-        if groups != list(range(len(groups))):
-            raise ValueError(
-                "ModelConfig.highway_role_groups must number its groups 0, 1, ... without "
-                f"gaps, got {self.highway_role_groups!r}"
-            )
+        check_rules(self, MODEL_RULES)
+        check_needs(self, MODEL_NEEDS)
 
 
 @dataclass(frozen=True)
@@ -386,25 +337,11 @@ class TrainConfig:
     # Leave out of the one-step loss the predictions made without a previous position (a
     # track's first step): their ~2 m miss is unlearnable and swamps the mm-sized errors.
     one_step_needs_previous: bool = False
-    # Decoupled weight decay (AdamW) per unit lr; 0: plain Adam (paper). A regulariser for the
-    # few training scenes of the synthetic settings (52 on Double Merge ratio 0.3).
-    weight_decay: float = 0.0
-    # Time-shift augmentation: each optimiser step observes T_obs + k steps, k drawn uniformly
-    # from [-observed_jitter, observed_jitter] (a function of seed and step, so resumable), and
-    # predicts the rest, so a manoeuvre is seen starting at several phases of the prediction
-    # window. 0: always the data's T_obs (paper). Validation and evaluation use T_obs.
-    observed_jitter: int = 0
     # Weight of the main agents' agent-steps in the per-agent loss terms (others: 1; each term
     # stays a weighted mean). The metric and the choice of best.pt score only the main agents,
     # 2 of 22 cars in the synthetic scenarios, whose manoeuvres are the hard part; the
     # distractors' near-constant motion otherwise holds ~90 % of every term. 1: paper.
     main_agent_weight: float = 1.0
-    # Weight of the teacher-forced one-step displacement term against the rollout's (mean_loss
-    # "displacement" only). The rollout's error (tens of cm) shapes the shared network; the
-    # one-step term (mm) then barely moves it: measured, the agent preset's one-step error of
-    # the main cars stayed at constant velocity's (12.8 vs 13.0 mm) while the one-step loss
-    # alone reached 6.5 mm in 15 epochs (constant acceleration: 5.1 mm). 1: equal weights.
-    one_step_weight: float = 1.0
     # Batch scenes of similar agent count together (predictor.data.BucketBatchSampler), each
     # padded only to its batch's largest count: on ETH/UCY a split's windows have 1-57
     # pedestrians (mean 11), and a batch padded to the largest pays for every padded slot.
@@ -422,31 +359,7 @@ class TrainConfig:
         require_finite(self)
         if self.variant not in VARIANTS:
             raise ValueError(f"unknown variant {self.variant!r}; choose from {sorted(VARIANTS)}")
-        choices = {
-            "lr_schedule": LR_SCHEDULES,
-            "rollout_feed": ROLLOUT_FEEDS,
-            "mean_loss": MEAN_LOSSES,
-        }
-        bounds = {  # field -> (holds, rule)
-            "seed": (0 <= self.seed <= MAX_SEED, f"in [0, {MAX_SEED}]"),
-            "epochs": (self.epochs >= 1, ">= 1"),
-            "batch_size": (self.batch_size >= 1, ">= 1"),
-            "lr": (self.lr > 0, "> 0"),
-            "beta1": (self.beta1 >= 0, ">= 0"),
-            "beta2": (self.beta2 >= 0, ">= 0"),
-            "tau": (self.tau >= 0, ">= 0"),
-            "grad_clip_norm": (self.grad_clip_norm >= 0, ">= 0"),
-            "eval_every": (self.eval_every >= 1, ">= 1"),
-            "threads": (self.threads >= 1, ">= 1"),
-            "lr_final_ratio": (0 <= self.lr_final_ratio <= 1, "in [0, 1]"),
-            "weight_decay": (self.weight_decay >= 0, ">= 0"),
-            "observed_jitter": (self.observed_jitter >= 0, ">= 0"),
-            "main_agent_weight": (self.main_agent_weight > 0, "> 0"),
-            "one_step_weight": (self.one_step_weight >= 0, ">= 0"),
-        }
-        require_rules(self, choices, bounds)
-        if self.one_step_weight != 1.0 and self.mean_loss != "displacement":
-            raise ValueError("TrainConfig.one_step_weight needs mean_loss='displacement'")
+        check_rules(self, TRAIN_RULES)
         spec = VARIANTS[self.variant]
         if not spec.smooth and self.beta2 != 0:
             raise ValueError(f"variant {self.variant!r} has no smoothness term; beta2 must be 0")
@@ -469,6 +382,74 @@ VARIANTS: dict[str, Variant] = {
     "s_attn": Variant("learned", sequence_loss=False, smooth=False),
     "average": Variant("uniform", sequence_loss=True, smooth=False),
     "correct": Variant("oracle", sequence_loss=True, smooth=False),
+}
+
+
+def _is_agent(config: ModelConfig) -> bool:
+    return config.frame == "agent"
+
+
+# The allowed values of each field (a field without a rule takes any value of its type).
+MODEL_RULES: dict[str, Rule] = {
+    "frame": one_of(FRAMES),
+    "offset_scale": one_of(OFFSET_SCALES),
+    "rollout_prior": one_of(ROLLOUT_PRIORS),
+    "mean_prior": one_of(MEAN_PRIORS),
+    "attention_mode": one_of(ATTENTION_MODES),
+    "neighbours": one_of(NEIGHBOURS),
+    "attended_fit": one_of(ATTENDED_FITS),
+    **{name: at_least(1) for name in ("embed_dim", "edge_hidden", "node_hidden", "attn_dim")},
+    "chunk_steps": at_least(1),
+    **{
+        name: above(0)
+        for name in ("position_scale_m", "interaction_scale_m", "step_scale_m", "min_std_m")
+    },
+    "attention_gain": above(0),
+    "log_std_gain": above(0),
+    "init_std_m": Rule("> min_std_m ({config.min_std_m})", lambda v, c: v > c.min_std_m),
+    "num_roles": at_least(ROLES_FROM_DATA),
+    "neighbour_radius_m": above(0),
+    "neighbour_k": at_least(1),
+    "highway_steps": Rule("0 or >= 2", lambda v, _: v == 0 or v >= 2),
+    "highway_horizon": at_least(1),
+    "highway_min_std": at_least(0),
+}
+# What a field needs when it is not at its default: (description, test of the config) pairs.
+MODEL_NEEDS: dict[str, tuple[tuple[str, Callable[[Any], bool]], ...]] = {
+    **{name: (("frame='agent'", _is_agent),) for name in AGENT_FRAME_ONLY},
+    "highway_steps": (("rollout_prior='anchored'", lambda c: c.rollout_prior == "anchored"),),
+    "highway_attended": (("highway_steps", lambda c: c.highway_steps > 0),),
+    "attended_refit": (("highway_attended", lambda c: c.highway_attended),),
+    "attended_fit": (
+        ("attended_refit", lambda c: c.attended_refit),
+        (
+            "highway_relation",
+            lambda c: c.highway_relation or c.attended_fit != "edge_relations",
+        ),
+    ),
+    "highway_relation": (("attended_refit", lambda c: c.attended_refit),),
+    "highway_zero_at_cv": (("attended_refit", lambda c: c.attended_refit),),
+    "highway_min_std": (("attended_refit", lambda c: c.attended_refit),),
+    "highway_head_groups": (
+        ("attended_fit='edge_relations'", lambda c: c.attended_fit == "edge_relations"),
+    ),
+}
+TRAIN_RULES: dict[str, Rule] = {
+    "lr_schedule": one_of(LR_SCHEDULES),
+    "rollout_feed": one_of(ROLLOUT_FEEDS),
+    "mean_loss": one_of(MEAN_LOSSES),
+    "seed": Rule(f"in [0, {MAX_SEED}]", lambda v, _: 0 <= v <= MAX_SEED),
+    "epochs": at_least(1),
+    "batch_size": at_least(1),
+    "lr": above(0),
+    "beta1": at_least(0),
+    "beta2": at_least(0),
+    "tau": at_least(0),
+    "grad_clip_norm": at_least(0),
+    "eval_every": at_least(1),
+    "threads": at_least(1),
+    "lr_final_ratio": Rule("in [0, 1]", lambda v, _: 0 <= v <= 1),
+    "main_agent_weight": above(0),
 }
 
 

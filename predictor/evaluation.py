@@ -44,7 +44,7 @@ from predictor.metrics import (
 from predictor.model import SmoothAttentionPredictor
 from predictor.outputs import expand_attention
 from predictor.predictions import Predictions
-from predictor.stored_config import model_config_from_dict
+from predictor.stored_config import RemovedOptionError, model_config_from_dict
 
 CHECKPOINT_FORMAT = "smooth-attention-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -98,6 +98,8 @@ def load_model(path: str | os.PathLike) -> tuple[SmoothAttentionPredictor, dict]
         config: ModelConfig = model_config_from_dict(checkpoint["model_config"])
         model = SmoothAttentionPredictor(config)
         model.load_state_dict(model.fill_unclamped_range(checkpoint["model_state"]))
+    except RemovedOptionError as err:
+        raise CheckpointError(f"{path}: {err}") from None
     except (KeyError, TypeError, ValueError, RuntimeError) as err:
         raise CheckpointError(f"{path}: inconsistent checkpoint ({err})") from None
     model.eval()

@@ -64,7 +64,7 @@ def history_features(
     the regularised fit read them cheaply (Double Merge, 12 steps: test ADE of the main cars
     0.33 m from velocities alone)."""
     span = min(steps, num_observed - 1)
-    if span < 2:  # no acceleration observed yet (e.g. under observed_jitter): no highway
+    if span < 2:  # no acceleration observed yet: no highway
         shape = (*present.shape[1:], 4 * steps - 3)
         return pos.new_zeros(shape), torch.zeros_like(present[0])
     window = pos[num_observed - 1 - span : num_observed]  # (span + 1, B, N, 2)

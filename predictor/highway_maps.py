@@ -111,22 +111,15 @@ class HighwayMaps:
 
     @property
     def num_groups(self) -> int:
-        """Role groups sharing highway maps (`ModelConfig.highway_role_groups`)."""
-        if not self.config.highway_role_groups:
-            return max(self.config.num_roles, 1)
-        return max(int(g) for g in self.config.highway_role_groups.split(",")) + 1
+        """Role groups with highway maps of their own: one per role (one without roles)."""
+        return max(self.config.num_roles, 1)
 
     def _groups_of(self, roles: Tensor | None, like: Tensor) -> Tensor:
-        """Each agent's highway map group (B, N) from its role (B, N) (group 0 for every agent
-        of a model without roles; `like` gives the shape and device)."""
+        """Each agent's highway map group (B, N): its role (group 0 for every agent of a model
+        without roles; `like` gives the shape and device)."""
         if roles is None:
             return torch.zeros(like.shape, dtype=torch.long, device=like.device)
-        if not self.config.highway_role_groups:
-            return roles
-        table = torch.tensor(
-            [int(g) for g in self.config.highway_role_groups.split(",")], device=roles.device
-        )
-        return table[roles]
+        return roles
 
     def fill_unclamped_range(self, state: dict[str, Tensor]) -> dict[str, Tensor]:
         """A state dict of this model with the highway's output range added where it lacks one
@@ -273,10 +266,7 @@ class HighwayMaps:
                 None if labels is None else labels[sl],
                 None if roles is None else roles[sl],
             )
-            if cfg.refit_on_prior and cfg.attention_mode == "learned":
-                theta = self._prior_attention(steps)
-            else:
-                theta = self._block(steps, 0, num_observed, None).attention[-1]  # (B, N, N-1)
+            theta = self._block(steps, 0, num_observed, None).attention[-1]  # (B, N, N-1)
             parts.append(self._refit_samples(steps, theta))
         own, attended, second, offsets, samples, slots, masses = (
             torch.cat(column) for column in zip(*parts)
@@ -313,22 +303,6 @@ class HighwayMaps:
         self.attended_weight.copy_(weight[:, split:] / scale)
         self.attended_fold_weight.copy_(fold_weight[:, :, split:] / scale)
         self._fit_bounds(offsets, samples, slots)
-
-    def _prior_attention(self, steps: _Steps) -> Tensor:
-        """The learned attention's prior at the last observed step (B, N, N-1)
-        (`ModelConfig.refit_on_prior`): equal weights over each agent's usable edges (both
-        agents present over the highway's window), each role of neighbour with one share
-        under role_balanced_attention (as `predictor.graph.role_balance`)."""
-        _, mask = self._neighbour_features(steps)
-        weight = mask.to(steps.pos.dtype)
-        if self.config.role_balanced_attention and steps.role_index is not None:
-            _, head = edge_index(mask.shape[1], mask.device)
-            kinds = steps.role_index[:, head].view(mask.shape)  # (B, N, N-1) attended role
-            onehot = torch.nn.functional.one_hot(kinds, self.config.num_roles).to(weight.dtype)
-            counts = (weight.unsqueeze(-1) * onehot).sum(2, keepdim=True)  # (B, N, 1, R)
-            same = (counts * onehot).sum(-1)  # (B, N, N-1): usable edges of that role
-            weight = weight / same.clamp(min=1.0)
-        return weight / weight.sum(-1, keepdim=True).clamp(min=1e-12)
 
     def _fit_bounds(self, offsets: Tensor, samples: Tensor, slots: Tensor) -> None:
         """The maps' output ranges (`change_bounds`) from the fitted samples' targets."""

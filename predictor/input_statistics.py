@@ -75,7 +75,7 @@ class InputStatistics:
         agent-steps (edges: the model's graph, both agents present). `offset_std` is the RMS
         per axis of the agent-frame one-step deviation from constant velocity,
         p^{t+1} - 2 p^t + p^{t-1} (zero mean by construction, so a zero output stays constant
-        velocity; also the unit of the acceleration input, `acceleration_input`). `anchor_std`
+        velocity). `anchor_std`
         (rollout_prior "anchored") is the RMS per axis of the agent-frame velocity change since
         the last observed step, v^t - v^{T_obs-1}, over the predicted steps. With
         `highway_steps` the highway's maps are fitted too (`_fit_highway`; roles (B, N) choose
@@ -100,7 +100,7 @@ class InputStatistics:
             self.input_mean.copy_(torch.cat([own.mean(0), pair_mean]))
             std = torch.cat([own.std(0), pair_std])
             self.input_std.copy_(std.clamp(min=MIN_STAT_STD))
-        if self.config.offset_scale == "deviation" or self.config.acceleration_input:
+        if self.config.offset_scale == "deviation":
             pos, prev = steps.pos, steps.prev_pos
             dev = pos[1:] - 2 * pos[:-1] + prev[:-1]  # (T-1, B, N, 2)
             before = torch.cat([present[:1] & False, present[:-2]], 0)  # (T-1, B, N) at t-1

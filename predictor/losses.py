@@ -123,8 +123,6 @@ class LossWeights:
     # (the others count 1; each term stays a weighted mean): the metric and checkpoint choice
     # score only the focal agents, 2 of 22 cars in the synthetic scenarios
     main_weight: float = 1.0
-    # weight of the one-step displacement term `de` (mean_loss "displacement")
-    one_step_weight: float = 1.0
 
 
 def compute_loss(
@@ -159,7 +157,7 @@ def compute_loss(
     total = terms["nll"] + weights.beta1 * terms["var"] + weights.beta2 * terms["tv"]
     if displacement:
         terms["de"] = _mean(*masked_sum(distance(target, one.mean), mask, w))
-        total = total + weights.one_step_weight * terms["de"]
+        total = total + terms["de"]
     if weights.sequence:
         if out.rollout is None:
             raise ValueError("the sequence loss needs a rollout")

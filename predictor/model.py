@@ -106,19 +106,12 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
         super().__init__()
         if config.num_roles < 0:
             raise ValueError("num_roles=-1 (from the data) must be resolved first (resolve_roles)")
-        groups = config.highway_role_groups
-        if groups and len(groups.split(",")) != config.num_roles:
-            raise ValueError(
-                f"ModelConfig.highway_role_groups names {len(groups.split(','))} roles' groups; "
-                f"the model has {config.num_roles} roles"
-            )
         self.config = config
         emb, hid = config.embed_dim, config.edge_hidden
         # one-hot role inputs of F_embed and F_self
         roles = max(config.num_roles, 0) if config.role_input else 0
         self.f_embed = nn.Sequential(nn.Linear(2 + roles, emb), nn.ReLU())
-        accel = 2 if config.acceleration_input else 0  # own acceleration inputs of F_self
-        self.f_self = nn.Sequential(nn.Linear(4 + accel + roles, emb), nn.ReLU())
+        self.f_self = nn.Sequential(nn.Linear(4 + roles, emb), nn.ReLU())
         edge_in = 6 if config.edge_velocity else 4
         self.f_interact = nn.Sequential(nn.Linear(edge_in, emb), nn.ReLU())
         self._register_statistics()  # input normalisation (predictor.input_statistics)
@@ -129,8 +122,7 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
         self.f_attn = nn.Linear(hid, config.attn_dim) if learned else None
         self.role_pair = None
         if config.role_attention_bias and learned and config.num_roles > 0:
-            kinds = self.num_groups if config.role_bias_by_group else config.num_roles
-            self.role_pair = nn.Parameter(torch.zeros(kinds, kinds))
+            self.role_pair = nn.Parameter(torch.zeros(config.num_roles, config.num_roles))
         self.g_pred = nn.LSTM(emb + 2 * hid, config.node_hidden)
         if config.detach_covariance:  # separate heads: offset (2), Cholesky raw (3)
             self.f_pred = nn.Linear(config.node_hidden, 2)
@@ -260,7 +252,6 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
                 steps,
                 labels,
                 state,
-                prev2_pos=steps.prev2_pos[sl],
             )
             chunks.append(chunk)
             state = chunk.state
@@ -277,10 +268,6 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
         present = steps.present[t_obs - 1]  # (B, N) agents rolled out
         gaussian = Gaussian2D(observed.gaussian.mean[-1], observed.gaussian.tril[-1])  # (B, N, .)
         state, prev = observed.state, steps.pos[t_obs - 1]  # prev: (B, N, 2)
-        prev2 = steps.prev_pos[t_obs - 1]  # (B, N, 2) the position before prev
-        # an agent absent at T_obs-2 has no acceleration at the first rollout step (as in
-        # _prepare): prev2 is then set so that it reads zero
-        first_known = steps.present[t_obs - 2] if t_obs >= 2 else torch.zeros_like(present)
         presence = self._presence(present[None], steps)  # the same at every rollout step
         anchor = None  # velocity at the last observed step (rollout_prior "anchored")
         if self.config.rollout_prior == "anchored":
@@ -303,8 +290,6 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
             current = gaussian.rsample() if sample else gaussian.mean  # (B, N, 2)
             current = torch.where(present.unsqueeze(-1), current, torch.zeros_like(current))
             labels = None if steps.labels is None else steps.labels[t : t + 1]  # (1, B, N)
-            if t == t_obs:
-                prev2 = torch.where(first_known.unsqueeze(-1), prev2, 2 * prev - current)
             block = self._run(
                 current[None],
                 prev[None],
@@ -313,13 +298,12 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
                 labels,
                 state,
                 step_anchor,
-                prev2[None],
                 presence,
             )
             gaussian = Gaussian2D(block.gaussian.mean[0], block.gaussian.tril[0])  # (B, N, .)
             gaussians.append(gaussian)
             attentions.append(block.attention[0])
-            state, prev, prev2 = block.state, current, prev
+            state, prev = block.state, current
         return Rollout(
             gaussian=Gaussian2D(
                 torch.stack([g.mean for g in gaussians], 1),  # (B, T_pred, N, 2)
@@ -338,15 +322,13 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
         labels: Tensor | None,
         state: RecurrentState | None,
         anchor: Tensor | None = None,
-        prev2_pos: Tensor | None = None,
         presence: Presence | None = None,
     ) -> StepOutputs:
         """S consecutive steps through the graph; inputs time-first (S, B, N, .).
 
         `anchor` (B, N, 2) [m/step]: rollout steps with the anchored prior p^t + anchor and the
-        offset from F_roll (rollout_prior "anchored"); None: the one-step prior. `prev2_pos`:
-        the positions two steps back (read with `acceleration_input`). `presence`: the edges'
-        presence terms of `present` (`_presence`), if already computed.
+        offset from F_roll (rollout_prior "anchored"); None: the one-step prior. `presence`: the
+        edges' presence terms of `present` (`_presence`), if already computed.
         """
         num_steps, batch, num_agents, _ = pos.shape
         cfg = self.config
@@ -359,10 +341,6 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
             x_edge = self._edge_inputs(rel, graph)  # (S, E, emb)
         else:
             rel, step, x_edge = self._agent_inputs(pos, prev_pos, present, steps.frame, graph)
-            if cfg.acceleration_input:
-                accel = rotate(pos - 2 * prev_pos + prev2_pos, steps.frame[1], inverse=True)
-                accel = torch.where(mask, accel / self.offset_std, 0.0)  # (S, B, N, 2)
-                step = torch.cat([step, accel], -1)
         own = rel
         if steps.roles is not None:  # one-hot roles (B, N, R) at every step
             role = steps.roles.unsqueeze(0).expand(num_steps, -1, -1, -1)  # (S, B, N, R)

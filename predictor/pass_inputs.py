@@ -21,7 +21,6 @@ class PassInputs:
 
     pos: Tensor  # (T, B, N, 2) [m]
     prev_pos: Tensor  # (T, B, N, 2) [m] previous position (current one if absent before)
-    prev2_pos: Tensor  # (T, B, N, 2) [m] two steps back (see prepare_pass for absent agents)
     present: Tensor  # (T, B, N) bool
     labels: Tensor | None  # (T, B, N) int64 attention labels, -1 none
     origin: Tensor  # (B, 2) [m]
@@ -74,16 +73,9 @@ def prepare_pass(
     prev_pos = torch.cat([pos[:1], pos[:-1]], 0)  # (T, B, N, 2)
     prev_present = torch.cat([present[:1], present[:-1]], 0)  # (T, B, N)
     prev_pos = torch.where(prev_present.unsqueeze(-1), prev_pos, pos)  # (T, B, N, 2)
-    prev2_pos = torch.cat([prev_pos[:1], prev_pos[:-1]], 0)  # (T, B, N, 2)
-    absent = torch.zeros_like(present[:2])
-    before = torch.cat([absent[:1], present[:-1]], 0)  # (T, B, N) present at t-1
-    before2 = torch.cat([absent, present[:-2]], 0)  # (T, B, N) present at t-2
-    known = (before2 & before & present).unsqueeze(-1)
-    prev2_pos = torch.where(known, prev2_pos, 2 * prev_pos - pos)  # (T, B, N, 2)
     return PassInputs(
         pos=pos,
         prev_pos=prev_pos,
-        prev2_pos=prev2_pos,
         present=present,
         labels=None if labels is None else labels.transpose(0, 1).long(),  # (T, B, N)
         origin=scene_origin(positions, valid, num_observed - 1),  # (B, 2)

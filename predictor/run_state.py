@@ -157,9 +157,7 @@ def checkpoint_dict(
 
 
 def make_optimizer(model: torch.nn.Module, config: TrainConfig) -> torch.optim.Optimizer:
-    """Adam (the paper's), or AdamW where config.weight_decay > 0."""
-    if config.weight_decay > 0:
-        return torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    """Adam, the paper's optimiser."""
     return torch.optim.Adam(model.parameters(), lr=config.lr)
 
 

@@ -31,7 +31,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import random
 import sys
 import time
 from collections.abc import Callable
@@ -86,7 +85,6 @@ def loss_weights(config: TrainConfig) -> LossWeights:
         config.mean_loss,
         config.one_step_needs_previous,
         config.main_agent_weight,
-        config.one_step_weight,
     )
 
 
@@ -99,17 +97,6 @@ def learning_rate(config: TrainConfig, step: int, total_steps: int) -> float:
     progress = min(step, total_steps - 1) / (total_steps - 1)
     final = config.lr * config.lr_final_ratio
     return final + (config.lr - final) * 0.5 * (1.0 + math.cos(math.pi * progress))
-
-
-def observed_steps(config: TrainConfig, step: int, num_observed: int, num_steps: int) -> int:
-    """Observed steps of optimiser step `step`: num_observed, or with `observed_jitter` j a
-    draw from [num_observed - j, num_observed + j] (clipped to [2, num_steps - 2]) that
-    depends only on the seed and the step."""
-    if config.observed_jitter == 0:
-        return num_observed
-    low = max(2, num_observed - config.observed_jitter)
-    high = min(num_steps - 2, num_observed + config.observed_jitter)
-    return random.Random(config.seed * 1_000_003 + step).randint(low, max(low, high))
 
 
 def train_step(
@@ -235,8 +222,7 @@ def run_epoch(
             step_callback(first_step + steps)
         step = first_step + steps
         lr = learning_rate(config, step, config.epochs * len(state.loader))
-        observed = observed_steps(config, step, num_observed, batch.num_steps)
-        terms = train_step(state.model, state.optimizer, batch, observed, config, lr)
+        terms = train_step(state.model, state.optimizer, batch, num_observed, config, lr)
         for name, value in terms.items():
             sums[name] = sums.get(name, 0.0) + value
         steps += 1
@@ -463,10 +449,9 @@ def _one_epoch(
     """Train one epoch, validate if due, update the best score; returns the metrics record."""
     started = time.perf_counter()
     model_cfg = state.model.config
-    changes = model_cfg.attention_mode == "learned" and not model_cfg.refit_on_prior
+    changes = model_cfg.attention_mode == "learned"
     # the highway read with this epoch's attention; uniform or oracle attention never changes,
-    # nor does the prior of refit_on_prior, so the fit at the first epoch (kept in the
-    # checkpoint) holds for every later one
+    # so the fit at the first epoch (kept in the checkpoint) holds for every later one
     if state.refit_scenes is not None and (changes or epoch == 1):
         bar.set_postfix_str(f"epoch {epoch}: refitting the highway", refresh=True)
         scenes = state.refit_scenes

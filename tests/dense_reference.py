@@ -81,7 +81,6 @@ class DensePredictor(SmoothAttentionPredictor):
         labels: Tensor | None,
         state: RecurrentState | None,
         anchor: Tensor | None = None,
-        prev2_pos: Tensor | None = None,
         presence: object = None,  # the packed model's edge terms, which this one has not
     ) -> StepOutputs:
         num_steps, batch, num_agents, _ = pos.shape
@@ -95,10 +94,6 @@ class DensePredictor(SmoothAttentionPredictor):
             x_edge = self._edge_inputs(rel, head)  # (S, B, N, N-1, E)
         else:
             rel, step, x_edge = self._agent_inputs(pos, prev_pos, present, steps.frame, head)
-            if cfg.acceleration_input:
-                accel = rotate(pos - 2 * prev_pos + prev2_pos, steps.frame[1], inverse=True)
-                accel = torch.where(mask, accel / self.offset_std, 0.0)  # (S, B, N, 2)
-                step = torch.cat([step, accel], -1)
         own = rel
         if steps.roles is not None:  # one-hot roles (B, N, R) at every step
             role = steps.roles.unsqueeze(0).expand(num_steps, -1, -1, -1)  # (S, B, N, R)

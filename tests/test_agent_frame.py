@@ -316,99 +316,6 @@ def test_training_skips_the_highway_fit_that_the_first_refit_replaces(
             assert torch.equal(skipped[key], fitted[key]), key
 
 
-def test_weight_decay_uses_decoupled_adamw_and_zero_keeps_adam():
-    """One AdamW step with zero gradients shrinks every weight by exactly lr * weight_decay."""
-    from predictor.run_state import make_optimizer
-
-    model = SmoothAttentionPredictor(ModelConfig(**SMALL))
-    plain = make_optimizer(model, TrainConfig(lr=0.01))
-    assert type(plain) is torch.optim.Adam
-    optimizer = make_optimizer(model, TrainConfig(lr=0.01, weight_decay=0.5))
-    assert type(optimizer) is torch.optim.AdamW
-    before = [p.detach().clone() for p in model.parameters()]
-    for param in model.parameters():
-        param.grad = torch.zeros_like(param)
-    optimizer.step()
-    for old, new in zip(before, model.parameters(), strict=True):
-        torch.testing.assert_close(new.detach(), old * (1 - 0.01 * 0.5))
-    with pytest.raises(ValueError, match="weight_decay must be >= 0"):
-        TrainConfig(weight_decay=-1.0)
-
-
-def test_observed_jitter_draws_within_bounds_from_seed_and_step_alone():
-    from predictor.training import observed_steps
-
-    assert observed_steps(TrainConfig(), 5, 15, 60) == 15
-    config = TrainConfig(observed_jitter=3, seed=2)
-    draws = [observed_steps(config, step, 15, 60) for step in range(400)]
-    assert set(draws) == set(range(12, 19))  # every value of [15 - 3, 15 + 3], nothing else
-    assert draws == [observed_steps(config, step, 15, 60) for step in range(400)]
-    other = [observed_steps(TrainConfig(observed_jitter=3, seed=3), s, 15, 60) for s in range(400)]
-    assert other != draws
-    edge = TrainConfig(observed_jitter=10)
-    assert {observed_steps(edge, s, 4, 8) for s in range(200)} == {2, 3, 4, 5, 6}
-
-
-def test_a_run_with_observed_jitter_trains_and_repeats_itself(dataset_file, tmp_path):
-    from predictor.training import train
-
-    model_cfg, train_cfg = make_configs(
-        "ours", SMALL, preset="agent", epochs=2, observed_jitter=2, weight_decay=0.1
-    )
-    losses = [
-        train(dataset_file, model_cfg, train_cfg, tmp_path / name, progress=False).final_loss
-        for name in ("a", "b")
-    ]
-    assert losses[0] == losses[1] and math.isfinite(losses[0])
-
-
-def test_two_steps_back_gives_the_finite_difference_acceleration_and_zero_where_unknown():
-    """_prepare's prev2_pos: p^t - 2 p^{t-1} + p^{t-2} equals a parabola's constant second
-    difference where the agent was present at t-2, t-1 and t, and 0 for its first two steps."""
-    t = torch.arange(8, dtype=torch.float32).view(1, 8, 1, 1)
-    accel = torch.tensor([0.3, -0.1])
-    positions = (2.0 * t * torch.tensor([1.0, 0.5]) + 0.5 * t**2 * accel).expand(1, 8, 2, 2)
-    positions = positions.clone()
-    valid = torch.ones(1, 8, 2, dtype=torch.bool)
-    valid[0, :3, 1] = False  # agent 1 enters at step 3
-    model = SmoothAttentionPredictor(ModelConfig(**SMALL, **AGENT, acceleration_input=True))
-    steps = model._prepare(positions, valid, 4, None)
-    second = steps.pos - 2 * steps.prev_pos + steps.prev2_pos  # (T, B, N, 2)
-    torch.testing.assert_close(second[2:, 0, 0], accel.expand(6, 2))
-    torch.testing.assert_close(second[:2, 0, 0], torch.zeros(2, 2))
-    torch.testing.assert_close(second[5:, 0, 1], accel.expand(3, 2))
-    torch.testing.assert_close(second[:5, 0, 1], torch.zeros(5, 2))
-
-
-def test_rollout_accelerations_continue_the_observed_ones(monkeypatch):
-    """On constant-velocity scenes the anchored, untrained model rolls out the truth, so every
-    acceleration it reads, observed or fed back (from the first rollout step on), must be zero:
-    the rollout tracks the position two steps back like teacher forcing does."""
-    gen = torch.Generator().manual_seed(0)
-    velocity = torch.randn(2, 1, 3, 2, generator=gen)
-    positions = torch.randn(2, 1, 3, 2, generator=gen) * 10 + velocity * torch.arange(9.0).view(
-        1, 9, 1, 1
-    )
-    valid = torch.ones(2, 9, 3, dtype=torch.bool)
-    options = {"rollout_prior": "anchored", "offset_scale": "deviation"}
-    config = ModelConfig(**SMALL, **AGENT, **options, acceleration_input=True)
-    model = SmoothAttentionPredictor(config)
-    model.fit_normalisation(*curved_scene(steps=9), 4)  # nonzero scales
-    seen = []
-    original = model._run
-
-    def spy(pos, prev_pos, present, steps, labels, state, anchor=None, prev2_pos=None, *rest):
-        seen.append((pos - 2 * prev_pos + prev2_pos).abs().max())
-        return original(pos, prev_pos, present, steps, labels, state, anchor, prev2_pos, *rest)
-
-    monkeypatch.setattr(model, "_run", spy)
-    out = model.predict(positions, valid, 4)
-    assert len(seen) > 4  # observed chunk(s) and rollout steps
-    assert max(float(x) for x in seen) < 1e-4
-    torch.testing.assert_close(out.rollout.mean, positions[:, 4:], atol=1e-4, rtol=1e-5)
-    assert model.f_self[0].in_features == 6  # position, velocity, acceleration
-
-
 def test_variants_without_a_rollout_loss_roll_out_their_one_step_model():
     """F_roll is trained by the rollout loss alone: S-Attn under the agent preset uses the
     one-step prior, and asking for the anchored one explicitly is an error."""
@@ -417,32 +324,6 @@ def test_variants_without_a_rollout_loss_roll_out_their_one_step_model():
     assert make_configs("ours", preset="agent")[0].rollout_prior == "anchored"
     with pytest.raises(ValueError, match="no rollout loss"):
         make_configs("s_attn", {"rollout_prior": "anchored"}, preset="agent")
-
-
-def test_an_agent_first_seen_at_the_last_observed_step_reads_no_rollout_acceleration(monkeypatch):
-    """Its position two steps back is unknown, so its first rollout step must read a zero
-    acceleration (as teacher forcing does), even when the rollout moves it."""
-    positions, valid = curved_scene(steps=9)
-    valid[:, :3, 2] = False  # agent 2 is first seen at step 3 = T_obs - 1
-    options = {"rollout_prior": "anchored", "offset_scale": "deviation"}
-    model = SmoothAttentionPredictor(
-        ModelConfig(**SMALL, **AGENT, **options, acceleration_input=True)
-    )
-    model.fit_normalisation(*curved_scene(steps=9), 4)
-    with torch.no_grad():
-        model.f_roll.bias.fill_(1.0)  # the rollout moves every agent off its last position
-    seen = []
-    original = model._run
-
-    def spy(pos, prev_pos, present, steps, labels, state, anchor=None, prev2_pos=None, *rest):
-        seen.append(pos - 2 * prev_pos + prev2_pos)
-        return original(pos, prev_pos, present, steps, labels, state, anchor, prev2_pos, *rest)
-
-    monkeypatch.setattr(model, "_run", spy)
-    model.predict(positions, valid, 4)
-    first_rollout = seen[-(9 - 4 - 1)]  # (1, B, N, 2): the input of the first fed-back step
-    assert float(first_rollout[0, :, 2].abs().max()) < 1e-5
-    assert float(first_rollout[0, :, 0].abs().max()) > 1e-3  # a known agent reads the change
 
 
 @pytest.mark.parametrize("inverse", [False, True])

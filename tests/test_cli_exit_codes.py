@@ -28,7 +28,10 @@ TOOLS = (
     "reproduce.py",
     "train.py",
 )
-TINY = ["--embed-dim", "8", "--edge-hidden", "8", "--node-hidden", "12", "--attn-dim", "4"]
+TINY = [
+    *("--set", "model.embed_dim=8", "--set", "model.edge_hidden=8"),
+    *("--set", "model.node_hidden=12", "--set", "model.attn_dim=4"),
+]
 
 
 def test_every_tool_is_covered():
@@ -204,7 +207,17 @@ def test_ctrl_c_during_the_demo_is_130_and_says_what_is_kept(tmp_path):
 # ---- failed work -----------------------------------------------------------------------------
 def test_a_diverged_training_is_exit_1(inputs, tmp_path):
     run = tmp_path / "run"
-    argv = ["--data", inputs["data"], "--out", run, "--lr", "1e30", "--epochs", "3", *TINY]
+    argv = [
+        "--data",
+        inputs["data"],
+        "--out",
+        run,
+        "--set",
+        "train.lr=1e30",
+        "--epochs",
+        "3",
+        *TINY,
+    ]
     done = run_tool("train.py", *argv, "--no-progress")
     assert done.returncode == 1, done.stderr
     lines = done.stderr.splitlines()

@@ -49,12 +49,6 @@ HIGHWAY = {**ANCHORED, "highway_steps": 12}
             },
             "ModelConfig.attended_fit='edge_relations' needs highway_relation",
         ),
-        ({"role_bias_by_group": True}, "ModelConfig.role_bias_by_group needs role_attention_bias"),
-        (
-            {"role_bias_by_group": True, "role_attention_bias": True},
-            "ModelConfig.role_bias_by_group needs highway_role_groups",
-        ),
-        ({"highway_role_groups": "0,2"}, "ModelConfig.highway_role_groups must number its groups"),
         ({"highway_zero_at_cv": True}, "ModelConfig.highway_zero_at_cv needs attended_refit"),
         ({"highway_min_std": 1e-4}, "ModelConfig.highway_min_std=0.0001 needs attended_refit"),
         ({"highway_min_std": -1.0}, "ModelConfig.highway_min_std must be >= 0, got -1.0"),

@@ -169,15 +169,3 @@ def test_main_agent_weight_makes_weighted_means_over_agent_steps():
     assert weighted["tv"] == plain["tv"] and weighted["tv_seq"] == plain["tv_seq"]
     with pytest.raises(ValueError, match="needs the focal mask"):
         compute_loss(out, positions, valid, t_obs, weights)
-
-
-def test_one_step_weight_scales_only_the_one_step_displacement_term():
-    out = hand_output(2, 6, 3, 2)
-    positions = torch.randn(2, 6, 3, 2, dtype=torch.float64)
-    valid = torch.ones(2, 6, 3, dtype=torch.bool)
-    base = dict(mean_loss="displacement", sequence=True)
-    one, a = compute_loss(out, positions, valid, 2, LossWeights(**base))
-    three, b = compute_loss(out, positions, valid, 2, LossWeights(**base, one_step_weight=3.0))
-    assert a["de"] == b["de"] and a["de_seq"] == b["de_seq"] and a["nll"] == b["nll"]
-    err = (positions[:, 1:] - out.one_step.mean).norm(dim=-1).mean()  # all agents present
-    assert abs(float(three - one) - 2.0 * float(err)) < 1e-9

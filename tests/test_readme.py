@@ -17,8 +17,8 @@ README = (REPO_ROOT / "README.md").read_text()
 BLOCKS = re.findall(r"^```(\w+)\n(.*?)^```", README, re.S | re.M)  # (language, code)
 QUICK_START = "make demo"  # the block run by CI and tests/test_demo.py, not here
 FASTER = {  # README text -> what the test runs (trainings of one epoch)
-    "--preset agent --out runs/hc_ours": "--preset agent --out runs/hc_ours --epochs 1",
-    'make_configs("ours", preset="agent", seed=0)': 'make_configs("ours", preset="agent", seed=0, epochs=1)',  # noqa: E501
+    "--out runs/hc_ours": "--out runs/hc_ours --epochs 1",
+    'api.train(data, "runs/hc_python", seed=0)': 'api.train(data, "runs/hc_python", seed=0, epochs=1)',  # noqa: E501
 }
 
 

@@ -4,7 +4,6 @@ neighbour, on the mirrored pair scenes of the attended highway's tests."""
 
 from __future__ import annotations
 
-import pytest
 import torch
 from test_attended_highway import REFIT, mirrored_pair_scenes
 
@@ -68,26 +67,3 @@ def test_role_balanced_attention_divides_each_weight_by_its_roles_count():
         model = SmoothAttentionPredictor(ModelConfig(**REFIT, role_balanced_attention=balanced))
         without.append(model(positions, valid, 8, sample=False).attention)
     torch.testing.assert_close(without[0], without[1])
-
-
-def test_role_bias_by_group_is_one_bias_for_every_pair_of_its_groups():
-    """Roles 0 and 1 in group 0: one bias (group 0 attends group 0) puts role 0's attention on
-    role 1 and role 1's on role 0, and leaves the group-1 agent's attention alone."""
-    positions, valid, _, _ = mirrored_pair_scenes(4, 10, 8, seed=6)
-    roles = torch.tensor([0, 1, 2]).expand(4, 3)
-    grouped = {**REFIT, "num_roles": 3, "role_attention_bias": True}
-    config = ModelConfig(**grouped, highway_role_groups="0,0,1", role_bias_by_group=True)
-    model = SmoothAttentionPredictor(config)
-    assert model.role_pair.shape == (2, 2)
-    before = model(positions, valid, 8, sample=False, roles=roles).attention
-    with torch.no_grad():
-        model.role_pair[0, 0] = 20.0
-    after = model(positions, valid, 8, sample=False, roles=roles).attention  # (B, T, N, N-1)
-    assert after[:, :, 0, 0].min() > 0.99  # agent 0 attends agent 1 (agent 0's edge 0)
-    assert after[:, :, 1, 0].min() > 0.99  # agent 1 attends agent 0 (agent 1's edge 0)
-    torch.testing.assert_close(after[:, :, 2], before[:, :, 2])
-    for missing in ({"highway_role_groups": ""}, {"role_attention_bias": False}):
-        with pytest.raises(ValueError, match="role_bias_by_group needs"):
-            ModelConfig(
-                **{**grouped, "highway_role_groups": "0,0,1", **missing}, role_bias_by_group=True
-            )

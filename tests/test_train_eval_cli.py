@@ -15,7 +15,10 @@ import pytest
 from conftest import REPO_ROOT, load_tool, run_tool, tool_env
 from test_training import write_braking_dataset
 
-TINY = ["--embed-dim", "8", "--edge-hidden", "8", "--node-hidden", "12", "--attn-dim", "4"]
+TINY = [
+    *("--set", "model.embed_dim=8", "--set", "model.edge_hidden=8"),
+    *("--set", "model.node_hidden=12", "--set", "model.attn_dim=4"),
+]
 NPZ_KEYS = {
     "format",
     "version",
@@ -55,8 +58,8 @@ def smoke(tmp_path_factory) -> dict:
         "2",
         "--seed",
         "0",
-        "--batch-size",
-        "4",
+        "--set",
+        "train.batch_size=4",
         "--preset",
         "paper",
         *TINY,
@@ -197,8 +200,8 @@ def test_closed_stdout_ends_quietly(smoke):
         ),
         (
             "train.py",
-            ["--data", "{data}", "--out", "{run}", "--resume", "--lr", "0.5"],
-            "--lr 0.5 differs from the stored run's --lr 0.001 (a resumed run keeps its",
+            ["--data", "{data}", "--out", "{run}", "--resume", "--set", "train.lr=0.5"],
+            "--set train.lr=0.5 differs from the stored run's --set train.lr=0.001 (a resumed",
         ),
         (
             "evaluate.py",
@@ -229,20 +232,34 @@ def test_closed_stdout_ends_quietly(smoke):
         ("evaluate.py", ["--run", "{foreign}", "--data", "{data}"], "is not a directory"),
         (
             "train.py",
-            ["--data", "{data}", "--out", "{tmp}/r", "--neighbours", "grid"],
-            "invalid choice",
+            ["--data", "{data}", "--out", "{tmp}/r", "--set", "model.neighbours=grid"],
+            "model.neighbours must be one of all, radius, knn, got 'grid'",
         ),
         (
             "train.py",
-            ["--data", "{data}", "--out", "{tmp}/r", "--neighbour-radius", "0"],
-            "ModelConfig.neighbour_radius_m must be > 0, got 0.0",
+            ["--data", "{data}", "--out", "{tmp}/r", "--set", "model.neighbour_radius_m=0"],
+            "model.neighbour_radius_m must be > 0, got 0.0",
         ),
         (
             "train.py",
-            ["--data", "{data}", "--out", "{tmp}/r", "--neighbour-k", "0"],
-            "ModelConfig.neighbour_k must be >= 1, got 0",
+            ["--data", "{data}", "--out", "{tmp}/r", "--set", "model.neighbour_k=0"],
+            "model.neighbour_k must be >= 1, got 0",
         ),
-        ("train.py", ["--data", "{data}", "--out", "{tmp}/r", "--neighbour-k", "2.5"], "int"),
+        (
+            "train.py",
+            ["--data", "{data}", "--out", "{tmp}/r", "--set", "model.neighbour_k=2.5"],
+            "model.neighbour_k takes an integer, got '2.5'",
+        ),
+        (
+            "train.py",
+            ["--data", "{data}", "--out", "{tmp}/r", "--set", "model.neighbour=knn"],
+            "unknown setting 'model.neighbour' (did you mean model.neighbours?); model settings: ",
+        ),
+        (
+            "train.py",
+            ["--data", "{data}", "--out", "{tmp}/r", "--set", "train.epochs=3"],
+            "train.epochs is not set with --set: use --epochs",
+        ),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(smoke, tmp_path, capsys, tool, args, message):
@@ -297,7 +314,7 @@ def test_checkpoint_of_an_older_version_loads_with_the_behaviour_it_was_trained_
     assert "bucket_batches" in ADDED_TRAIN_FIELDS
     for name in ("neighbours", "neighbour_k", "highway_attended", "attention_gain"):
         del checkpoint["model_config"][name]  # as written before these fields existed
-    for name in ("bucket_batches", "one_step_weight"):
+    for name in ("bucket_batches", "compile_graph_step"):
         del checkpoint["train_config"][name]
     old = tmp_path / "old"
     shutil.copytree(smoke["run"], old)
@@ -311,6 +328,31 @@ def test_checkpoint_of_an_older_version_loads_with_the_behaviour_it_was_trained_
     assert train_config.bucket_batches is False and train_config.epochs == 3
 
 
+def test_checkpoint_that_used_a_removed_option_is_refused_in_one_line(smoke, tmp_path: Path):
+    """A run written while the rejected options existed loads where it left them at the value
+    the current code computes, and is refused, naming the option and the commit, where not."""
+    import torch
+
+    from predictor.stored_config import REMOVED_IN, REMOVED_MODEL_FIELDS, REMOVED_TRAIN_FIELDS
+
+    checkpoint = torch.load(smoke["run"] / "best.pt", weights_only=True)
+    checkpoint["model_config"].update(REMOVED_MODEL_FIELDS)  # as written before the removal
+    checkpoint["train_config"].update(REMOVED_TRAIN_FIELDS)
+    for name, changes in (("neutral", {}), ("used", {"observed_jitter": 2})):
+        run = tmp_path / name
+        shutil.copytree(smoke["run"], run)
+        stored = {**checkpoint, "train_config": {**checkpoint["train_config"], **changes}}
+        if changes:
+            stored["model_config"] = {**stored["model_config"], "acceleration_input": True}
+        torch.save(stored, run / "best.pt")
+        result = run_tool("evaluate.py", "--run", run, "--data", smoke["data"], "--overwrite")
+        if not changes:
+            assert result.returncode == 0, result.stderr
+            continue
+        assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
+        assert "acceleration_input=True" in result.stderr and REMOVED_IN in result.stderr
+
+
 def test_train_keeps_the_neighbour_graph_in_the_checkpoint(smoke, tmp_path: Path, capsys):
     import torch
 
@@ -318,7 +360,8 @@ def test_train_keeps_the_neighbour_graph_in_the_checkpoint(smoke, tmp_path: Path
 
     run = tmp_path / "radius"
     args = ["--data", smoke["data"], "--out", run, "--epochs", "1", "--no-progress", *TINY]
-    graph = ["--neighbours", "radius", "--neighbour-radius-m", "15", "--bucket-batches", "no"]
+    graph = ["--set", "model.neighbours=radius", "--set", "model.neighbour_radius_m=15"]
+    graph += ["--set", "train.bucket_batches=no"]
     load_tool("train.py").main([str(a) for a in [*args, *graph]])
     assert "trained ours for 1 epochs" in capsys.readouterr().out
     stored = torch.load(run / "best.pt", weights_only=True)

@@ -17,7 +17,10 @@ import predictor.training
 from predictor.run_state import ResumeMismatch, resume_configs, run_status
 from predictor.training import NOTHING_KEPT, RESTORED, RESUMABLE, TrainingInterrupted
 
-TINY = ["--embed-dim", "8", "--edge-hidden", "8", "--node-hidden", "12", "--attn-dim", "4"]
+TINY = [
+    *("--set", "model.embed_dim=8", "--set", "model.edge_hidden=8"),
+    *("--set", "model.node_hidden=12", "--set", "model.attn_dim=4"),
+]
 
 
 @pytest.fixture
@@ -41,8 +44,8 @@ def command(data: Path, out: Path, *extra: str, epochs: int = 3) -> list[str]:
         "0",
         "--epochs",
         str(epochs),
-        "--batch-size",
-        "3",
+        "--set",
+        "train.batch_size=3",
         "--no-progress",
         *TINY,
         *extra,
@@ -122,8 +125,16 @@ def test_the_same_command_plus_resume_continues_bit_identically(
             "nonsmooth",
             "--variant nonsmooth differs from the stored run's --variant ours",
         ),
-        ("--batch-size", "4", "--batch-size 4 differs from the stored run's --batch-size 3"),
-        ("--standardise", "no", "--standardise no differs from the stored run's --standardise yes"),
+        (
+            "--set",
+            "train.batch_size=4",
+            "--set train.batch_size=4 differs from the stored run's --set train.batch_size=3",
+        ),
+        (
+            "--set",
+            "model.standardise=no",
+            "--set model.standardise=no differs from the stored run's --set model.standardise=yes",
+        ),
     ],
 )
 def test_a_changed_fixed_option_is_refused_naming_both_values(
@@ -135,15 +146,15 @@ def test_a_changed_fixed_option_is_refused_naming_both_values(
         assert run_train(command(data, run), capsys)[0] == 130
     before = files(run)
     argv = command(data, run, "--resume")
-    if option in argv:
+    if option in argv and option != "--set":
         argv[argv.index(option) + 1] = value
-    else:
+    else:  # a later --set of the same key overrides the earlier one
         argv += [option, value]
     code, out, err = run_train(argv, capsys)
     assert (code, out) == (2, "")
     assert err == (
-        f"error: {message} (a resumed run keeps its configuration; only --epochs, --threads, "
-        "--eval-every may change)\n"
+        f"error: {message} (a resumed run keeps its configuration; only --epochs, train.threads, "
+        "train.eval_every may change)\n"
     )
     assert files(run) == before  # nothing touched
 

@@ -170,13 +170,12 @@ REFIT_AGENT = {
         {
             **REFIT_AGENT,
             "role_attention_bias": True,
-            "highway_role_groups": "0,0,1",
             "attended_fit": "edges",
             "highway_head_groups": False,
         },
         {**REFIT_AGENT, "attended_fit": "edge_relations"},
     ],
-    ids=["paper", "agent_refit", "agent_role_bias_groups_edges", "agent_edge_relations"],
+    ids=["paper", "agent_refit", "agent_role_bias_edges", "agent_edge_relations"],
 )
 def test_resume_after_interruption_equals_uninterrupted(
     braking_file: Path, tmp_path: Path, refit: dict | None
