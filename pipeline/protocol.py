@@ -11,11 +11,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
-from pipeline.report.records import BASELINES
 from predictor.presets import DEFAULT_PRESET
+from predictor.registry import REPORTED_BASELINES, TRAINED
 
-TRAINED_VARIANTS = ("ours", "s_attn", "nonsmooth", "average", "correct")
-ALL_VARIANTS = (*TRAINED_VARIANTS, *BASELINES)
+TRAINED_VARIANTS = TRAINED  # predictor.registry, in its order
+ALL_VARIANTS = (*TRAINED_VARIANTS, *REPORTED_BASELINES)
 DATA_SEED = 0  # one dataset per setting, fixed: seeds vary only the training
 NUM_TEST = 50  # test trajectories per case (paper)
 PAPER_EPOCHS, PAPER_SEEDS = 200, 10

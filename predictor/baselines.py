@@ -41,26 +41,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from predictor.registry import BASELINES, RIDGE_BASELINES  # noqa: F401 (re-exported)
 from predictor.ridge_cv import fit_ridge_cv
 
 if TYPE_CHECKING:  # annotations only: the baselines run on plain numpy arrays
     from predictor.format import DatasetMeta, TrajectorySet
 
-BASELINES = (
-    "const_vel",
-    "ridge",
-    "ridge_nearest",
-    "ridge_labelled",
-    "ridge_random",
-    "ridge_labelled_relation",
-)
-RIDGE_BASELINES = {  # baseline name -> RidgeConfig fields
-    "ridge": {"neighbours": "none"},
-    "ridge_nearest": {"neighbours": "nearest"},
-    "ridge_labelled": {"neighbours": "labelled"},
-    "ridge_random": {"neighbours": "random"},
-    "ridge_labelled_relation": {"neighbours": "labelled", "groups": "relation"},
-}
+# the baselines' names and each ridge baseline's RidgeConfig fields: predictor.registry
 NEIGHBOUR_MODES = ("none", "nearest", "labelled", "random", "shuffled")
 # one regression per agent role; or, for the agents that carry an attention label, one per
 # relation to the labelled agent (RELATION_AHEAD / RELATION_BEHIND), whatever their role; or one

@@ -27,6 +27,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
+from predictor.registry import VARIANTS, Variant  # noqa: F401 (re-exported)
+
 ATTENTION_MODES = ("learned", "uniform", "oracle")
 MEAN_PRIORS = ("velocity", "position")
 FRAMES = ("scene", "agent")
@@ -365,24 +367,6 @@ class TrainConfig:
             raise ValueError(f"variant {self.variant!r} has no smoothness term; beta2 must be 0")
         if self.sequence_loss != spec.sequence_loss:
             raise ValueError(f"variant {self.variant!r} fixes sequence_loss={spec.sequence_loss}")
-
-
-@dataclass(frozen=True)
-class Variant:
-    """What a named variant fixes: the attention mode, the sequence loss and smoothness."""
-
-    attention_mode: str
-    sequence_loss: bool
-    smooth: bool  # False forces beta2 = 0
-
-
-VARIANTS: dict[str, Variant] = {
-    "ours": Variant("learned", sequence_loss=True, smooth=True),
-    "nonsmooth": Variant("learned", sequence_loss=True, smooth=False),
-    "s_attn": Variant("learned", sequence_loss=False, smooth=False),
-    "average": Variant("uniform", sequence_loss=True, smooth=False),
-    "correct": Variant("oracle", sequence_loss=True, smooth=False),
-}
 
 
 def _is_agent(config: ModelConfig) -> bool:

@@ -23,19 +23,9 @@ from pipeline.report.records import CASES, LABELS, METRICS, CaseNames, Measure, 
 from pipeline.report.statistics import p_text
 from predictor.plots import draw_attention, new_figure, role_color, save_figure
 from predictor.predictions import Predictions
+from predictor.registry import COLORS
 
 DPI = 110
-COLORS = {
-    "ours": "#ff7f0e",
-    "s_attn": "#1f77b4",
-    "nonsmooth": "#2ca02c",
-    "average": "#9467bd",
-    "correct": "#d62728",
-    "const_vel": "#7f7f7f",
-    "ridge": "#8c564b",
-    "ridge_labelled": "#bcbd22",
-    "ridge_labelled_relation": "#17becf",
-}
 
 
 def save(fig: Figure, path: str | os.PathLike) -> Path:

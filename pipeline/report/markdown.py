@@ -26,12 +26,13 @@ from pipeline.report.records import (
     label,
 )
 from pipeline.report.statistics import ALPHA, ALPHA_S_ATTN, STATISTICS, size_margins
+from predictor.registry import FIXED_ATTENTION  # nothing learned to score
 
 if TYPE_CHECKING:
     from pipeline.protocol import Protocol
     from pipeline.report.document import Report
 
-FIXED_ATTENTION = ("average", "correct", *BASELINES)  # nothing learned to score
+
 NOTES = """Notes on the protocol:
 - One dataset per setting, generated with dataset seed 0; all variants and training seeds see
   the same trajectories, so the spread over seeds is training randomness only (initial weights,

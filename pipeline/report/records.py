@@ -12,6 +12,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Literal
 
+from predictor.registry import LABELS, ORACLE_BASELINES, REPORTED_BASELINES  # noqa: F401
+
 Role = Literal["major", "minor", "overall"]
 Group = Literal["main_agents", "all_agents"]
 Quantity = Literal["ade", "fde", "attention_accuracy", "attention_weight"]
@@ -22,22 +24,10 @@ METRICS: tuple[Quantity, ...] = ("ade", "fde")
 GROUPS: tuple[Group, ...] = ("main_agents", "all_agents")
 HEADLINE: Group = "main_agents"  # the two interacting cars: the group the claims are about
 ATTENTION: tuple[Quantity, ...] = ("attention_accuracy", "attention_weight")
-# untrained predictors, evaluated once per setting: constant velocity, ridge on the car's own
-# history, and the two oracle ridges with the labelled car's history (per role, and per
-# relation to it: predictor.baselines), the bar a trained model must clear
-BASELINES = ("const_vel", "ridge", "ridge_labelled", "ridge_labelled_relation")
-ORACLE_BASELINES = ("ridge_labelled", "ridge_labelled_relation")
-LABELS = {  # how tables and figures name the variants
-    "ours": "Ours",
-    "s_attn": "S-Attn",
-    "nonsmooth": "Ours-NonSmooth",
-    "average": "Ours-Average",
-    "correct": "Ours-Correct",
-    "const_vel": "Const-Vel",
-    "ridge": "Ridge",
-    "ridge_labelled": "Ridge+label (oracle)",
-    "ridge_labelled_relation": "Ridge+label per relation (oracle)",
-}
+# untrained predictors the report evaluates once per setting (constant velocity, ridge on the
+# car's own history, and the oracle ridges with the labelled car's history, the bar a trained
+# model must clear), their labels: predictor.registry
+BASELINES = REPORTED_BASELINES
 
 PRESET_MARK = "@"  # "ours@agent_zero_cv": a variant trained under a compared preset
 

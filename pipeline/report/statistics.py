@@ -32,14 +32,12 @@ from pipeline.report.records import (
     WelchTest,
     split_variant,
 )
+from predictor.registry import OURS, PAIRS, RIVALS  # noqa: F401 (re-exported)
 
 ALPHA_S_ATTN = 0.01  # the paper's threshold for Ours vs S-Attn
 ALPHA = 0.05  # every other comparison
-OURS = "ours"
-RIVALS = ("s_attn", "nonsmooth", "average", "correct")  # compared with Ours, in this order
-# every (first, other) pair compared: Ours against each rival, and the oracle attention against
-# the uniform one (does the interaction pathway carry information?)
-PAIRS = tuple((OURS, rival) for rival in RIVALS) + (("correct", "average"),)
+# Ours, the rivals compared with it (in this order) and every (first, other) pair compared come
+# from predictor.registry
 STATISTICS = (
     "mean +- sample standard deviation (ddof = 1) over training seeds; p-values: "
     "Welch's two-sided two-sample t-test, scipy.stats.ttest_ind(equal_var=False)"
