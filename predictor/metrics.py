@@ -26,7 +26,8 @@ Conventions (shared by every predictor, the constant-velocity baseline included)
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -61,15 +62,40 @@ def focal_view(
     return gather_agents(pred, slots), gather_agents(true, slots), keep
 
 
+def average_displacement(dist: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """ADE's parts per scene: the errors [m] summed over every counted (step, agent), and how
+    many were counted. dist, keep (n, T_pred, A)."""
+    return dist.sum(axis=(1, 2)), keep.sum(axis=(1, 2))
+
+
+def final_displacement(dist: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """FDE's parts per scene: the errors [m] at the final step summed over the agents counted
+    there, and their number."""
+    return dist[:, -1].sum(axis=-1), keep[:, -1].sum(axis=-1)
+
+
+@dataclass(frozen=True)
+class ErrorMetric:
+    """A pooled error metric: `parts(dist, keep)` gives per scene a sum over counted items and
+    their count (dist: the Euclidean errors [m] with uncounted items at 0); the metric is the
+    pooled sum over the pooled count. The evaluation, eval.json and the report's tables and
+    figures read every metric of `ERROR_METRICS`."""
+
+    name: str
+    parts: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+    count_key: str | None = None  # the eval.json key of its item count, if it records one
+
+
+ERROR_METRICS: tuple[ErrorMetric, ...] = (
+    ErrorMetric("ade", average_displacement, "count"),
+    ErrorMetric("fde", final_displacement, "final_count"),
+)
+
+
 def _errors(pred: np.ndarray, true: np.ndarray, keep: np.ndarray) -> dict:
     dist = np.linalg.norm(pred - true, axis=-1)  # (n, T_pred, A)
     dist = np.where(keep, dist, 0.0)
-    return {
-        "ade_sum": dist.sum(axis=(1, 2)),  # (n,)
-        "ade_count": keep.sum(axis=(1, 2)),  # (n,)
-        "fde_sum": dist[:, -1].sum(axis=-1),  # (n,)
-        "fde_count": keep[:, -1].sum(axis=-1),  # (n,)
-    }
+    return {metric.name: metric.parts(dist, keep) for metric in ERROR_METRICS}
 
 
 def _ratio(total: float, count: int) -> float | None:
@@ -77,14 +103,16 @@ def _ratio(total: float, count: int) -> float | None:
 
 
 def _pool(parts: dict, rows: np.ndarray) -> dict:
-    ade_count, fde_count = int(parts["ade_count"][rows].sum()), int(parts["fde_count"][rows].sum())
-    return {
-        "ade": _ratio(float(parts["ade_sum"][rows].sum()), ade_count),
-        "fde": _ratio(float(parts["fde_sum"][rows].sum()), fde_count),
-        "count": ade_count,
-        "final_count": fde_count,
-        "scenes": int(rows.sum()),
+    sums = {
+        name: (float(total[rows].sum()), int(count[rows].sum()))
+        for name, (total, count) in parts.items()
     }
+    pooled: dict = {name: _ratio(total, count) for name, (total, count) in sums.items()}
+    for metric in ERROR_METRICS:
+        if metric.count_key is not None:
+            pooled[metric.count_key] = sums[metric.name][1]
+    pooled["scenes"] = int(rows.sum())
+    return pooled
 
 
 def displacement_metrics(

@@ -143,3 +143,30 @@ def test_json_safe_writes_non_finite_scores_as_null():
     safe = json_safe(scores)
     assert safe == {"ade": None, "per_step": [0.5, None, None], "n": 3, "case": ["a", 1.0]}
     assert json.loads(json.dumps(safe, allow_nan=False)) == safe
+
+
+def test_a_metric_added_to_the_registry_is_scored_per_group_and_case(monkeypatch):
+    """One function and one ERROR_METRICS line: a 2 m miss rate at the final step, checked
+    against a hand count; the report's METRICS are the registry's names."""
+    import predictor.metrics as metrics
+    from pipeline.report.records import METRICS
+
+    assert METRICS == tuple(m.name for m in metrics.ERROR_METRICS) == ("ade", "fde")
+
+    def misses(dist, keep):
+        return ((dist[:, -1] > 2.0) & keep[:, -1]).sum(axis=-1), keep[:, -1].sum(axis=-1)
+
+    added = (*metrics.ERROR_METRICS, metrics.ErrorMetric("miss_rate", misses))
+    monkeypatch.setattr(metrics, "ERROR_METRICS", added)
+    true = np.zeros((2, 3, 2, 2))
+    pred = true.copy()
+    pred[0, -1, 0, 0] = 3.0  # scene 0: agent 0 misses by 3 m at the final step
+    pred[1, -1, 1, 0] = 1.0  # scene 1: agent 1 is 1 m off, not a miss
+    mask = np.ones((2, 3, 2), dtype=bool)
+    focal = np.array([[True, False], [True, False]])
+    result = metrics.displacement_metrics(pred, true, mask, np.array([0, 1]), ["a", "b"], focal)
+    assert result["all_agents"]["overall"]["miss_rate"] == 1 / 4
+    assert result["all_agents"]["cases"]["a"]["miss_rate"] == 1 / 2
+    assert result["all_agents"]["cases"]["b"]["miss_rate"] == 0.0
+    assert result["main_agents"]["overall"]["miss_rate"] == 1 / 2
+    assert result["all_agents"]["overall"]["fde"] == (3.0 + 1.0) / 4

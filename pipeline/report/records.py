@@ -12,6 +12,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Literal
 
+from predictor.metrics import ERROR_METRICS
 from predictor.registry import LABELS, ORACLE_BASELINES, REPORTED_BASELINES  # noqa: F401
 
 Role = Literal["major", "minor", "overall"]
@@ -20,7 +21,7 @@ Quantity = Literal["ade", "fde", "attention_accuracy", "attention_weight"]
 
 CASES: tuple[Role, ...] = ("major", "minor")  # the two cases, by role in the setting
 ROLES: tuple[Role, ...] = (*CASES, "overall")
-METRICS: tuple[Quantity, ...] = ("ade", "fde")
+METRICS: tuple[Quantity, ...] = tuple(m.name for m in ERROR_METRICS)  # type: ignore[assignment]
 GROUPS: tuple[Group, ...] = ("main_agents", "all_agents")
 HEADLINE: Group = "main_agents"  # the two interacting cars: the group the claims are about
 ATTENTION: tuple[Quantity, ...] = ("attention_accuracy", "attention_weight")
