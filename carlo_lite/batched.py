@@ -18,16 +18,12 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from carlo_lite.collision import CollisionChecker
 from carlo_lite.kinematics import CarLimits, bicycle_step, wrap_angle
 from carlo_lite.road import StraightRoad
-
-if TYPE_CHECKING:
-    from carlo_lite.world import World
 
 DEFAULT_LENGTH_M = 4.5
 DEFAULT_WIDTH_M = 1.8
@@ -216,11 +212,9 @@ class BatchedWorld:
         clone._step_count = self._step_count.copy()
         return clone
 
-    def scene(self, index: int) -> World:
-        """Scene `index` as an independent one-scene `World` (same state, clock, removed cars
-        and bodies); IndexError outside [0, num_scenes)."""
-        from carlo_lite.world import World
-
+    def one_scene(self, index: int) -> BatchedWorld:
+        """Scene `index` as an independent one-scene batch (same state, clock, removed cars
+        and bodies; `World.from_scene` wraps it); IndexError outside [0, num_scenes)."""
         if not 0 <= index < self.num_scenes:
             raise IndexError(f"scene {index} out of range: this world has {self.num_scenes}")
         single = copy.copy(self)
@@ -234,7 +228,7 @@ class BatchedWorld:
         single._step_count = self._step_count[index : index + 1].copy()
         single._flat_wheelbase, single._flat_length = self.wheelbase_m, self.length_m
         single._flat_width = self.width_m
-        return World.of(single)
+        return single
 
     # --- dynamics ---------------------------------------------------------------------------
     def step(self, controls: np.ndarray) -> None:

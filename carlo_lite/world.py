@@ -76,6 +76,12 @@ class World:
         world.batch = batch
         return world
 
+    @classmethod
+    def from_scene(cls, batch: BatchedWorld, index: int) -> World:
+        """Scene `index` of `batch` as an independent `World` (a copy: same state, clock,
+        removed cars and bodies); IndexError outside [0, batch.num_scenes)."""
+        return cls.of(batch.one_scene(index))
+
     # --- what the scene is made of ----------------------------------------------------------
     @property
     def road(self) -> StraightRoad:

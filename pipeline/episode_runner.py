@@ -14,7 +14,7 @@ import multiprocessing
 import multiprocessing.pool
 import signal
 import sys
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 from tqdm import tqdm
 
@@ -22,8 +22,15 @@ from pipeline.signals import DeferredSignals
 from scenarios import VERSIONS, Scenario
 from scenarios.rollout import Episode, rollout_batch
 
-if TYPE_CHECKING:
-    from pipeline.generation import Slot
+
+@dataclass(frozen=True)
+class Slot:
+    """One trajectory to generate: where it goes and with which seed."""
+
+    split: str
+    case: str
+    seed: int
+
 
 _POLL_SECONDS = 0.1  # how often the parent looks for a recorded signal while workers run
 _MAX_CHUNK = 32  # most episodes per pool task, one by one (fewer tasks, but a moving bar)

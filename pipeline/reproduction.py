@@ -57,6 +57,7 @@ from pipeline.generation import UnsafeExpertError, generate_dataset
 from pipeline.pool import check_stop
 from pipeline.protocol import Protocol, ReproductionError
 from pipeline.report.records import BASELINES
+from pipeline.report.report_input import Invocation, RunCounts
 from pipeline.result_store import (
     collect,
     keep_result,
@@ -225,36 +226,6 @@ def _train_seconds(metrics: Path) -> float:
     return float(sum(json.loads(line)["seconds"] for line in lines if line.strip()))
 
 
-@dataclass(frozen=True)
-class RunCounts:
-    """What an invocation did with the datasets and runs of its protocol."""
-
-    datasets_generated: int
-    datasets_reused: int
-    runs: int  # every run of the protocol
-    reused: int  # runs whose eval.json was cached
-    trained: int
-    resumed: int
-    failed: int
-    failures: tuple[str, ...] = ()  # "run_dir: error" of each failed run
-    skipped: int = 0  # runs not started because the time budget ran out
-    reused_from_store: int = 0  # of `reused`: read from the results store, not the cache
-    kept: int = 0  # results copied into the results store by this invocation
-
-    def to_json(self) -> dict:
-        return {**asdict(self), "failures": list(self.failures)}
-
-
-@dataclass(frozen=True)
-class Invocation:
-    """One logged invocation that ran jobs."""
-
-    date: str
-    command: str
-    seconds: float
-    runs: int  # jobs run (trained or resumed; const_vel: evaluated)
-
-
 def make_datasets(runner: Runner, items: list[tuple[DataSpec, str]]) -> list[str]:
     """ "generated" or "reused" per dataset: cached files are checked here, the missing ones
     made on the backend; RuntimeError if one cannot be made."""
@@ -398,7 +369,8 @@ def reproduce(
     RayUnavailableError if Ray is asked for but not installed; KeyboardInterrupt leaves every
     finished run cached.
     """
-    from pipeline.report.document import ReportInput, write_report
+    from pipeline.report.document import write_report
+    from pipeline.report.report_input import ReportInput
 
     for path in (report, report.with_name("results.json")):
         if path.exists() and not overwrite:

@@ -29,20 +29,19 @@ from collections.abc import Callable
 from pathlib import Path
 
 from pipeline.backends import BACKENDS
-from pipeline.episode_runner import DEFAULT_BATCH_SCENES
-from pipeline.generation import (
+from pipeline.dataset_plan import (
     MAX_ATTEMPTS,
     SEED_STRIDE,
     GenerateConfig,
     GenerationResult,
-    Slot,
     UnsafeExpertError,
-    _dataset_meta,
-    _to_trajectory_set,
+    dataset_meta,
     is_safe,
     plan,
     rollout_session,
+    to_trajectory_set,
 )
+from pipeline.episode_runner import DEFAULT_BATCH_SCENES, Slot
 from predictor.shards import ShardedWriter, check_target
 from scenarios import VERSIONS
 from scenarios.rollout import Episode
@@ -86,7 +85,7 @@ def generate_sharded(
         ) from None
     start = time.perf_counter()
     scenario = VERSIONS[config.scenario].make()
-    meta = _dataset_meta(config, scenario, 0)
+    meta = dataset_meta(config, scenario, 0)
     # the shards' config: the generator's and the scenario's; the index adds the total of
     # rejected episodes, known only at the end
     shard_meta = dataclasses.replace(
@@ -96,7 +95,7 @@ def generate_sharded(
     written = []
 
     def write(split: str, position: int, episodes: list[Episode]) -> None:
-        data = _to_trajectory_set(episodes, meta.case_names)
+        data = to_trajectory_set(episodes, meta.case_names)
         writer.write_shard(split, position, data)
         for episode in episodes:
             counts[split][episode.case] += 1
@@ -113,7 +112,7 @@ def generate_sharded(
             address=address,
             batch_scenes=batch_scenes,
         )
-        meta = _dataset_meta(config, scenario, rejected)
+        meta = dataset_meta(config, scenario, rejected)
         index = writer.finish(meta)
     return GenerationResult(
         path=index,

@@ -17,17 +17,13 @@ from __future__ import annotations
 
 import dataclasses
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
 from carlo_lite import CarLimits, StraightRoad
 from scenarios.controllers import LateralGains
-
-if TYPE_CHECKING:
-    from scenarios.expert import Expert
 
 ROLE_NAMES: tuple[str, ...] = ("main_green", "main_brown", "distractor")
 GREEN, BROWN, DISTRACTOR = 0, 1, 2  # indices into ROLE_NAMES; also the main cars' agent indices
@@ -158,7 +154,9 @@ class Scenario(ABC):
     default_major_case: ClassVar[str]
     role_names: ClassVar[tuple[str, ...]] = ROLE_NAMES
     config_class: ClassVar[type[ScenarioConfig]] = ScenarioConfig
-    expert_class: ClassVar[type[Expert]]
+    # the scenes' expert, a `scenarios.expert.Expert` subclass (built by `expert_for`); this
+    # module leaves it untyped so that the expert's module, which reads plans, is not imported
+    expert_class: ClassVar[type]
 
     def __init__(self, config: ScenarioConfig | None = None, *, name: str | None = None) -> None:
         config = self.config_class() if config is None else config
@@ -192,10 +190,6 @@ class Scenario(ABC):
     def plan(self, seed: int, case: str) -> ScenarioPlan:
         """The plan of the episode of `seed` and `case`: `sample_plan(default_rng(seed), case)`."""
         return self.sample_plan(np.random.default_rng(seed), self.check_case(case))
-
-    def expert(self, plans: Sequence[ScenarioPlan]) -> Expert:
-        """The expert driving one scene per plan (`scenarios.expert.Expert`)."""
-        return self.expert_class(self, plans)
 
     # --- the environment's user manual (scenarios.manual) ----------------------------------
     @classmethod

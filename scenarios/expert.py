@@ -28,15 +28,13 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
 from carlo_lite import BatchedWorld
+from scenarios.base import Scenario, ScenarioPlan
 from scenarios.controllers import IDMParams, lateral_steering, speed_tracking_accel
-
-if TYPE_CHECKING:
-    from scenarios.base import Scenario, ScenarioPlan
 
 
 def scalar_idm_accel(
@@ -237,3 +235,8 @@ class Expert(ABC):
     @abstractmethod
     def interaction(self, world: BatchedWorld) -> np.ndarray:
         """(B,) bool: the current step lies in the scene's interaction period."""
+
+
+def expert_for(scenario: Scenario, plans: Sequence[ScenarioPlan]) -> Expert:
+    """The expert driving one scene per plan: the scenario's `expert_class`."""
+    return scenario.expert_class(scenario, plans)

@@ -20,6 +20,7 @@ import numpy as np
 
 from carlo_lite import World
 from scenarios.base import Scenario, ScenarioPlan
+from scenarios.expert import expert_for
 
 
 @dataclass(frozen=True, eq=False)
@@ -141,7 +142,7 @@ def _record(
 
     config = scenario.config
     num_scenes, num_steps, num_cars = len(plans), config.num_steps, scenario.num_cars
-    expert = scenario.expert(plans)
+    expert = expert_for(scenario, plans)
     world = expert.make_world()
     states = np.empty((num_scenes, num_steps, num_cars, 4), dtype=np.float32)
     actions = np.empty((num_scenes, num_steps, num_cars, 2), dtype=np.float32)

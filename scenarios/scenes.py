@@ -18,6 +18,7 @@ import numpy as np
 
 from carlo_lite import BatchedWorld, wrap_angle
 from scenarios.base import Scenario, ScenarioConfig, ScenarioPlan
+from scenarios.expert import expert_for
 
 EGO_FEATURES = 4  # x, y, heading, speed
 OTHER_FEATURES = 5  # presence, dx, dy, d_heading, d_speed
@@ -90,7 +91,7 @@ class Scenes:
     def __init__(self, scenario: Scenario, plans: Sequence[ScenarioPlan]) -> None:
         self.scenario = scenario
         self.config = scenario.config
-        self.expert = scenario.expert(plans)
+        self.expert = expert_for(scenario, plans)
         self.world = self.expert.make_world()
         self.num_scenes, self.num_cars = len(plans), scenario.num_cars
         self._low, self._high = observation_bounds(self.config, self.num_cars)

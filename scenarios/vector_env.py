@@ -40,7 +40,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from carlo_lite import render_rgb
+from carlo_lite import World, render_rgb
 from scenarios.base import ScenarioConfig
 from scenarios.env import (
     FRAME_HEIGHT_PX,
@@ -314,7 +314,7 @@ class ScenarioVectorEnv:
         """A (200, 800, 3) uint8 top-down frame of `scene`, centred on its main cars."""
         if self.scenes is None:
             raise RuntimeError("call reset() before render()")
-        world = self.scenes.world.scene(scene)
+        world = World.from_scene(self.scenes.world, scene)
         main = np.nonzero(world.active[:2])[0]
         center = None
         if len(main):

@@ -24,7 +24,7 @@ from predictor.baselines import (
     scene_derangement,
 )
 from predictor.format import DatasetMeta, TrajectorySet, write_dataset
-from predictor.interaction import interaction_gain
+from predictor.interaction_gain import interaction_gain
 
 DT = 0.2
 OBSERVED = 8

@@ -79,7 +79,7 @@ def test_scene_is_an_independent_world_of_the_same_state():
     batched = BatchedWorld(ROAD, state, length_m=LENGTHS, width_m=WIDTHS)
     controls = rng.uniform(-1.0, 1.0, (4, len(LENGTHS), 2))
     batched.step(controls)
-    world = batched.scene(2)
+    world = World.from_scene(batched, 2)
     np.testing.assert_array_equal(world.state, batched.state[2])
     assert world.time_s == batched.time_s[2]
     world.step(controls[2])
@@ -87,7 +87,7 @@ def test_scene_is_an_independent_world_of_the_same_state():
     np.testing.assert_array_equal(world.state, batched.state[2])
     for outside in (-1, 4):
         with pytest.raises(IndexError, match=f"scene {outside} out of range"):
-            batched.scene(outside)
+            World.from_scene(batched, outside)
 
 
 def test_views_are_read_only_and_bad_controls_are_named():

@@ -3,7 +3,8 @@
     python tools/inspect_data.py data/double_merge.h5
     python tools/inspect_data.py data/double_merge.h5 --interaction-gain
 
-With --interaction-gain, also the interaction gain of the labelled cars (predictor.interaction):
+With --interaction-gain, also the interaction gain of the labelled cars
+(predictor.interaction_gain):
 the test ADE of ridge regressions fitted on the train split on the attending car's own history,
 plus the labelled car's, plus a random car's, per case and role; --gain-groups relation fits
 the attending cars' regressions per relation to the labelled car (ahead or behind it) instead
@@ -22,7 +23,7 @@ from pipeline.cli import ArgumentParser, fail, require_file, run_main
 from predictor.baselines import GROUPINGS
 from predictor.format import FormatError
 from predictor.format_reader import read_meta, summarize
-from predictor.interaction import CONTROLS, PENALTIES, format_gain_table, interaction_gain
+from predictor.interaction_gain import CONTROLS, PENALTIES, format_gain_table, interaction_gain
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -9,90 +9,22 @@ from __future__ import annotations
 
 import datetime
 import json
-from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pipeline.files import atomic_output
 from pipeline.report import figures, markdown
-from pipeline.report.context import DatasetInfo, MachineInfo, dataset_info, machine_info
-from pipeline.report.records import ClaimRow, Results, RunRecord
-from pipeline.report.statistics import STATISTICS, analyse, claims
+from pipeline.report.context import dataset_info, machine_info
+from pipeline.report.report_input import Report, ReportInput
+from pipeline.report.statistics import analyse, claims
 from predictor.format_reader import read_meta, read_split
 from predictor.plots import plot_samples
 from predictor.predictions import load_predictions
 
-if TYPE_CHECKING:
-    from pipeline.protocol import Protocol
-    from pipeline.reproduction import Invocation, RunCounts
-
 NOTES_FILE = "results_notes.md"  # the lead's discussion, beside the report, quoted verbatim
 FIGURE_SETTINGS = ("dm_r0.3", "hc_stop")  # settings whose scenes are drawn when run
-
-
-@dataclass(frozen=True)
-class ReportInput:
-    """Everything the report needs from a reproduction."""
-
-    protocol: Protocol
-    runs: tuple[RunRecord, ...]
-    data_paths: Mapping[str, str]  # setting -> dataset file
-    scene_files: Mapping[str, Mapping[str, str]]  # setting -> {"ours", "s_attn"} -> scenes.npz
-    command: str
-    counts: RunCounts
-    jobs: int
-    seconds: float  # wall time of the reproduction before the report
-    history: tuple[Invocation, ...] = ()  # logged invocations that trained runs
-
-
-@dataclass(frozen=True)
-class Report:
-    """The input with what is derived from it: statistics, datasets, machine, claims, figures."""
-
-    input: ReportInput
-    results: Results
-    datasets: Mapping[str, DatasetInfo]  # setting -> its dataset
-    size_settings: tuple[str, ...]  # size-study settings run, smallest training set first
-    claims: tuple[ClaimRow, ...]
-    machine: MachineInfo
-    date: str
-    figures: Mapping[str, tuple[str, ...]] = field(default_factory=dict)  # section -> files
-
-    def to_json(self) -> dict:
-        """The content of results.json."""
-        source = self.input
-        return {
-            "date": self.date,
-            "machine": asdict(self.machine),
-            "command": source.command,
-            "wall_seconds": round(source.seconds, 1),
-            "statistics": STATISTICS,
-            "protocol": source.protocol.to_json(),
-            "datasets": {name: info.to_json() for name, info in self.datasets.items()},
-            "counts": source.counts.to_json(),
-            "runs": [run.to_json() for run in self.results.runs],
-            "aggregates": _by_setting(
-                {(s, v): x.to_json() for (s, v), x in self.results.summaries.items()}
-            ),
-            "tests": _by_setting(
-                {
-                    (s, f"{f}_vs_{o}"): x.to_json()
-                    for (s, f, o), x in self.results.comparisons.items()
-                }
-            ),
-            "claims": [row.to_json() for row in self.claims],
-            "figures": {section: list(names) for section, names in self.figures.items()},
-        }
-
-
-def _by_setting(entries: Mapping[tuple[str, str], dict]) -> dict:
-    out: dict = {}
-    for (setting, key), value in entries.items():
-        out.setdefault(setting, {})[key] = value
-    return out
 
 
 def build_report(source: ReportInput) -> Report:

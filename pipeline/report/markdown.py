@@ -30,7 +30,7 @@ from predictor.registry import FIXED_ATTENTION  # nothing learned to score
 
 if TYPE_CHECKING:
     from pipeline.protocol import Protocol
-    from pipeline.report.document import Report
+    from pipeline.report.report_input import Report
 
 
 NOTES = """Notes on the protocol:
