@@ -22,11 +22,11 @@ from pathlib import Path
 import torch
 
 from pipeline.generation import GenerateConfig, generate_dataset
-from predictor.data import TrajectoryDataset
 from predictor.evaluation import predict_baseline, predict_model, score
 from predictor.model import SmoothAttentionPredictor
 from predictor.predictions import Predictions
 from predictor.presets import make_configs
+from trajectory_data.torch_dataset import TrajectoryDataset
 
 
 def median_seconds(function, repeats: int) -> float:

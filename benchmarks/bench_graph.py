@@ -29,12 +29,12 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from predictor.data import Batch  # noqa: E402
 from predictor.graph import neighbour_graph  # noqa: E402
 from predictor.model import SmoothAttentionPredictor  # noqa: E402
 from predictor.presets import make_configs  # noqa: E402
 from predictor.run_state import make_optimizer  # noqa: E402
 from predictor.training import train_step  # noqa: E402
+from trajectory_data.torch_dataset import Batch  # noqa: E402
 
 SCENES, STEPS, OBSERVED, DT = 8, 20, 8, 0.4  # ETH/UCY window shape, the paper's batch size
 DENSITY = 0.1  # pedestrians per m^2

@@ -40,12 +40,12 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from predictor.config import ModelConfig, resolve_roles  # noqa: E402
-from predictor.data import Batch  # noqa: E402
 from predictor.evaluation import predict_model  # noqa: E402
 from predictor.model import SmoothAttentionPredictor  # noqa: E402
 from predictor.presets import make_configs  # noqa: E402
 from predictor.run_state import make_optimizer  # noqa: E402
 from predictor.training import train_step  # noqa: E402
+from trajectory_data.torch_dataset import Batch  # noqa: E402
 
 ROLE_NAMES = ("main_green", "main_brown", "distractor")  # the scenarios' roles (agent preset)
 # Settings timed besides the presets, to show what each addition costs: the agent preset before

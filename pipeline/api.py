@@ -90,8 +90,9 @@ def train(
     Raises ValueError for an unknown preset, variant or setting, or a value out of range (one
     line naming the setting and what it allows), `predictor.run_state.ResumeMismatch` for a
     resume that asks for another configuration, `predictor.run_files.RunError` for an unusable
-    run directory (e.g. not empty and not `overwrite`), `predictor.format.FormatError` for a bad
-    data file, FloatingPointError if training diverges, and
+    run directory (e.g. not empty and not `overwrite`),
+    `trajectory_data.format.FormatError` for a bad data file, FloatingPointError if training
+    diverges, and
     `predictor.training.TrainingInterrupted` on Ctrl-C.
     """
     assignments = [f"{key}={_typed(value)}" for key, value in (settings or {}).items()]
@@ -137,7 +138,7 @@ def evaluate(
     Raises ValueError unless exactly one of `run` and `baseline` is given,
     `predictor.evaluation.CheckpointError` for a missing or unreadable run,
     `predictor.evaluation.EvaluationError` for an unknown baseline, an empty split or data of
-    another scenario than the run's, `predictor.format.FormatError` for a bad data file.
+    another scenario than the run's, `trajectory_data.format.FormatError` for a bad data file.
     """
     if (run is None) == (baseline is None):
         raise ValueError("give one of run and baseline")

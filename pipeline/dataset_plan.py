@@ -20,10 +20,10 @@ from tqdm import tqdm
 
 from pipeline.episode_runner import Slot, run_slots
 from pipeline.signals import DeferredSignals
-from predictor.format import DatasetMeta, TrajectorySet
 from scenarios import FAMILIES, VERSIONS, Scenario, lookup, resolve
 from scenarios.base import BROWN, GREEN
 from scenarios.rollout import Episode
+from trajectory_data.format import DatasetMeta, TrajectorySet
 
 FOCAL_AGENTS = (GREEN, BROWN)  # the two main cars: the agents scored and selecting checkpoints
 

@@ -57,9 +57,9 @@ from pipeline.dataset_plan import (  # noqa: F401 (the generator's public names,
 )
 from pipeline.episode_runner import DEFAULT_BATCH_SCENES, Slot
 from pipeline.sharded_generation import generate_sharded
-from predictor.format import TrajectorySet, write_dataset
 from scenarios import VERSIONS, Scenario
 from scenarios.rollout import Episode
+from trajectory_data.format import TrajectorySet, write_dataset
 
 
 def generate_episodes(
@@ -178,10 +178,10 @@ def generate_dataset(
 
     `shard_size` (default None: one file): `out` is a folder (no .h5 suffix) of shard files of at
     most `shard_size` trajectories of one split each, plus `out/index.h5`, which reads exactly as
-    the single file would (`predictor.shards`; the result's `path`). Each shard is written as soon
-    as it is done, so memory holds about one shard (`pipeline.sharded_generation`); the output
-    is the same for any `workers` and `backend`. An existing `out` is replaced (with
-    `overwrite`) only if it is a file or a sharded dataset's folder, else IsADirectoryError.
+    the single file would (`trajectory_data.shards`; the result's `path`). Each shard is written as
+    soon as it is done, so memory holds about one shard (`pipeline.sharded_generation`); the output
+    is the same for any `workers` and `backend`. An existing `out` is replaced (with `overwrite`)
+    only if it is a file or a sharded dataset's folder, else IsADirectoryError.
     """
     out = Path(out)
     if workers < 1:

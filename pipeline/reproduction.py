@@ -99,7 +99,7 @@ def ensure_dataset(item: tuple[DataSpec, str]) -> str:
     Raises RuntimeError naming the file if a cached one was made with other inputs or
     generation fails.
     """
-    from predictor.format_reader import read_meta
+    from trajectory_data.reader import read_meta
 
     spec, path = item
     check_stop()

@@ -4,7 +4,7 @@
 
 What `generate_dataset(..., shard_size=N)` runs (see there): the plan (`generation.plan`) is cut
 into shards of at most N consecutive trajectories of one split (train, then val, then test), and
-the shards are rolled out one after the other, each written (`predictor.shards.ShardedWriter`)
+the shards are rolled out one after the other, each written (`trajectory_data.shards.ShardedWriter`)
 and dropped as soon as it is safe, so memory holds one shard, not the dataset. The index then
 reads exactly as the single file `generate_dataset` writes without `shard_size`: same seeds,
 arrays, order and metadata.
@@ -42,9 +42,9 @@ from pipeline.dataset_plan import (
     to_trajectory_set,
 )
 from pipeline.episode_runner import DEFAULT_BATCH_SCENES, Slot
-from predictor.shards import ShardedWriter, check_target
 from scenarios import VERSIONS
 from scenarios.rollout import Episode
+from trajectory_data.shards import ShardedWriter, check_target
 
 # what a shard hands to its writer: split, position in the split, episodes in plan order
 WriteShard = Callable[[str, int, list[Episode]], None]

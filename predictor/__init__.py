@@ -1,8 +1,8 @@
 """Trajectory prediction with a smooth attention prior.
 
-Holds the dataset format (`predictor.format`, h5py + numpy only), the torch dataset, the model,
-losses, training and evaluation. Importing this package imports nothing heavy: `predictor.format`
-stays usable without torch.
+Holds the model, its settings and presets, the losses, training, evaluation, metrics and plots;
+the dataset format, its readers and the torch dataset are the `trajectory_data` package's.
+Importing this package imports nothing heavy.
 """
 
 from importlib.metadata import PackageNotFoundError, version

@@ -45,7 +45,7 @@ from predictor.registry import BASELINES, RIDGE_BASELINES  # noqa: F401 (re-expo
 from predictor.ridge_cv import fit_ridge_cv
 
 if TYPE_CHECKING:  # annotations only: the baselines run on plain numpy arrays
-    from predictor.format import DatasetMeta, TrajectorySet
+    from trajectory_data.format import DatasetMeta, TrajectorySet
 
 # the baselines' names and each ridge baseline's RidgeConfig fields: predictor.registry
 NEIGHBOUR_MODES = ("none", "nearest", "labelled", "random", "shuffled")

@@ -344,11 +344,12 @@ class TrainConfig:
     # 2 of 22 cars in the synthetic scenarios, whose manoeuvres are the hard part; the
     # distractors' near-constant motion otherwise holds ~90 % of every term. 1: paper.
     main_agent_weight: float = 1.0
-    # Batch scenes of similar agent count together (predictor.data.BucketBatchSampler), each
-    # padded only to its batch's largest count: on ETH/UCY a split's windows have 1-57
-    # pedestrians (mean 11), and a batch padded to the largest pays for every padded slot.
-    # On by default: it draws the same random numbers as plain batching, so where every scene
-    # has the same agent count (the synthetic scenarios: 22 cars) the batches are identical.
+    # Batch scenes of similar agent count together
+    # (trajectory_data.torch_dataset.BucketBatchSampler), each padded only to its batch's largest
+    # count: on ETH/UCY a split's windows have 1-57 pedestrians (mean 11), and a batch padded to the
+    # largest pays for every padded slot. On by default: it draws the same random numbers as plain
+    # batching, so where every scene has the same agent count (the synthetic scenarios: 22 cars) the
+    # batches are identical.
     bucket_batches: bool = True
     # Train through `torch.compile` of the model's graph step (SmoothAttentionPredictor._run,
     # LSTMs traced): the same mathematics to float rounding, a ~1.5x faster agent-preset step

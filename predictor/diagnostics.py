@@ -23,9 +23,9 @@ import numpy as np
 import torch
 
 from predictor.baselines import scene_labels
-from predictor.data import Batch
 from predictor.metrics import focal_slots, focal_view, prediction_mask
 from predictor.model import SmoothAttentionPredictor
+from trajectory_data.torch_dataset import Batch
 
 # (states (n, T, N, C), valid (n, T, N)) -> predicted means (n, T_pred, N, 2) [m]
 Predict = Callable[[np.ndarray, np.ndarray], np.ndarray]

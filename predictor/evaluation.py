@@ -32,9 +32,7 @@ from predictor.baselines import (
     constant_velocity,
 )
 from predictor.config import ModelConfig
-from predictor.data import Batch, TrajectoryDataset
 from predictor.diagnostics import counterfactual_shift, error_curves, one_step_errors
-from predictor.format import DatasetMeta, TrajectorySet
 from predictor.metrics import (
     attention_accuracy,
     displacement_metrics,
@@ -45,6 +43,8 @@ from predictor.model import SmoothAttentionPredictor
 from predictor.outputs import expand_attention
 from predictor.predictions import Predictions
 from predictor.stored_config import RemovedOptionError, model_config_from_dict
+from trajectory_data.format import DatasetMeta, TrajectorySet
+from trajectory_data.torch_dataset import Batch, TrajectoryDataset
 
 CHECKPOINT_FORMAT = "smooth-attention-checkpoint"
 CHECKPOINT_VERSION = 1

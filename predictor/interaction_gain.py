@@ -40,8 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from predictor.baselines import BANDED_SCALES, RidgeBaseline, RidgeConfig
-from predictor.format_reader import read_meta, read_split
 from predictor.metrics import prediction_mask
+from trajectory_data.reader import read_meta, read_split
 
 MODES = ("none", "labelled", "random")  # RidgeConfig.neighbours of own, labelled, random
 CONTROLS = ("random", "shuffled")  # RidgeConfig.neighbours of the control (GainRow.random)

@@ -22,8 +22,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from predictor.format import DatasetMeta, TrajectorySet
 from predictor.predictions import Predictions
+from trajectory_data.format import DatasetMeta, TrajectorySet
 
 ROAD_COLOR = "#ececec"  # axes background: the road area
 TRUE_COLOR = "#8c8c8c"  # ground-truth lines

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from predictor.format import DatasetMeta, TrajectorySet, legacy_focal
+from trajectory_data.format import DatasetMeta, TrajectorySet, legacy_focal
 
 PREDICTIONS_FORMAT = "smooth-attention-predictions"
 PREDICTIONS_VERSION = 3  # 3 adds `focal`; 2 (read: the first two slots focal) had none

@@ -28,7 +28,6 @@ import torch
 from predictor import __version__
 from predictor.compiled_step import compile_graph_step, compiler_missing
 from predictor.config import ModelConfig, TrainConfig, resolve_roles
-from predictor.data import Batch, TrajectoryDataset, make_loader
 from predictor.evaluation import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, read_checkpoint
 from predictor.model import SmoothAttentionPredictor
 from predictor.presets import PRESET_FIELDS, make_configs
@@ -41,6 +40,7 @@ from predictor.stored_config import (
     model_config_from_dict,
     train_config_from_dict,
 )
+from trajectory_data.torch_dataset import Batch, TrajectoryDataset, make_loader
 
 RESUME_MAY_CHANGE = ("epochs", "threads", "eval_every")  # TrainConfig fields; nothing else may
 

@@ -42,7 +42,6 @@ from tqdm import tqdm
 
 from predictor import __version__
 from predictor.config import ModelConfig, TrainConfig, resolve_roles
-from predictor.data import Batch, TrajectoryDataset
 from predictor.evaluation import (
     CheckpointError,
     json_safe,
@@ -50,7 +49,6 @@ from predictor.evaluation import (
     read_checkpoint,
     score,
 )
-from predictor.format import DatasetMeta
 from predictor.losses import LossWeights, compute_loss
 from predictor.model import SmoothAttentionPredictor
 from predictor.predictions import Predictions
@@ -73,6 +71,8 @@ from predictor.run_state import (
     rewrite_metrics,
 )
 from predictor.stored_config import config_to_dict
+from trajectory_data.format import DatasetMeta
+from trajectory_data.torch_dataset import Batch, TrajectoryDataset
 
 
 def loss_weights(config: TrainConfig) -> LossWeights:

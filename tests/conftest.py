@@ -28,13 +28,13 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 if str(REPO_ROOT) not in sys.path:  # make the packages importable without installation
     sys.path.insert(0, str(REPO_ROOT))
 
-from predictor.format import (  # noqa: E402
+from predictor.predictions import Predictions  # noqa: E402
+from trajectory_data.format import (  # noqa: E402
     SPLITS,
     DatasetMeta,
     TrajectorySet,
     write_dataset,
 )
-from predictor.predictions import Predictions  # noqa: E402
 
 # one torch thread for every test, whichever files are collected (the tools run with one too)
 torch.set_num_threads(1)

@@ -259,9 +259,9 @@ def test_fit_normalisation_works_for_every_attention_mode():
 def test_agent_preset_run_keeps_its_fitted_scales_and_is_deterministic(dataset_file, tmp_path):
     """The training split's statistics travel in the checkpoint; a second run with the same
     seed gives the same weights and the same evaluation."""
-    from predictor.data import TrajectoryDataset
     from predictor.evaluation import evaluate_run, load_model
     from predictor.training import train
+    from trajectory_data.torch_dataset import TrajectoryDataset
 
     model_cfg, train_cfg = make_configs("ours", SMALL, preset="agent", epochs=2)
     runs = [tmp_path / "a", tmp_path / "b"]

@@ -23,8 +23,8 @@ from predictor.baselines import (
     relation_groups,
     scene_derangement,
 )
-from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 from predictor.interaction_gain import interaction_gain
+from trajectory_data.format import DatasetMeta, TrajectorySet, write_dataset
 
 DT = 0.2
 OBSERVED = 8

@@ -133,13 +133,13 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
         ),
         (
             "inspect_data.py",
-            "predictor.format_reader.summarize",
+            "trajectory_data.reader.summarize",
             ["{data}"],
             "error: interrupted",
         ),
         (
             "import_data.py",
-            "pipeline.importers.interaction.import_interaction",
+            "trajectory_data.importers.interaction.import_interaction",
             ["interaction", "{data}", "--out", "{tmp}/i.h5"],
             "error: interrupted; nothing was written",
         ),

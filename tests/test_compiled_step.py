@@ -12,12 +12,12 @@ import torch
 from test_training import TINY_MODEL, write_braking_dataset
 
 from predictor.compiled_step import compile_graph_step, compiler_missing
-from predictor.data import TrajectoryDataset, collate_batch
 from predictor.model import SmoothAttentionPredictor
 from predictor.presets import make_configs
 from predictor.run_files import RunError
 from predictor.stored_config import config_key
 from predictor.training import train, train_step
+from trajectory_data.torch_dataset import TrajectoryDataset, collate_batch
 
 pytestmark = pytest.mark.skipif(
     compiler_missing() is not None, reason="torch.compile's CPU kernels need a C++ compiler"

@@ -1,4 +1,5 @@
-"""Tests for predictor.data: dataset sizes, Batch layout, collation and deterministic loading."""
+"""Tests for trajectory_data.torch_dataset: dataset sizes, Batch layout, collation and
+deterministic loading."""
 
 from __future__ import annotations
 
@@ -9,8 +10,8 @@ import pytest
 import torch
 from conftest import make_meta, make_trajectory_set
 
-from predictor.data import Batch, TrajectoryDataset, collate_batch, make_loader
-from predictor.format import FormatError, TrajectorySet, write_dataset
+from trajectory_data.format import FormatError, TrajectorySet, write_dataset
+from trajectory_data.torch_dataset import Batch, TrajectoryDataset, collate_batch, make_loader
 
 torch.set_num_threads(1)
 

@@ -8,8 +8,8 @@ import numpy as np
 from conftest import load_tool, run_tool
 
 from predictor.baselines import constant_velocity
-from predictor.format_reader import read_meta, read_split
 from predictor.predictions import load_predictions
+from trajectory_data.reader import read_meta, read_split
 
 
 def test_demo_refuses_a_folder_it_did_not_write(tmp_path):

@@ -8,7 +8,6 @@ import pytest
 import torch
 
 from predictor.config import ModelConfig
-from predictor.data import Batch
 from predictor.diagnostics import (
     counterfactual_shift,
     error_curve,
@@ -16,6 +15,7 @@ from predictor.diagnostics import (
     swap_history,
 )
 from predictor.model import SmoothAttentionPredictor
+from trajectory_data.torch_dataset import Batch
 
 torch.set_num_threads(1)
 

@@ -13,12 +13,12 @@ from conftest import downgrade_to_schema_1, make_meta, make_trajectory_set
 
 from predictor.baselines import RidgeBaseline, RidgeConfig, displacement_heading
 from predictor.evaluation import EvaluationError, evaluate_baseline
-from predictor.format import SPLITS, write_dataset
-from predictor.format_reader import read_dataset
 from predictor.metrics import prediction_mask
 from predictor.presets import make_configs
 from predictor.run_files import RunError
 from predictor.training import train
+from trajectory_data.format import SPLITS, write_dataset
+from trajectory_data.reader import read_dataset
 
 
 def write_small_dataset(path: Path, counts: tuple[int, int, int], num_agents: int):

@@ -1,4 +1,4 @@
-"""Tests for predictor.format: round trip, atomic writes, and rejection of invalid arrays and
+"""Tests for trajectory_data.format: round trip, atomic writes, and rejection of invalid arrays and
 meta before anything is written."""
 
 from __future__ import annotations
@@ -20,15 +20,15 @@ from conftest import (
     write_small_dataset,
 )
 
-import predictor.format as fmt
-from predictor.format import (
+import trajectory_data.format as fmt
+from trajectory_data.format import (
     OPTIONAL_FIELDS,
     SPLITS,
     FormatError,
     TrajectorySet,
     write_dataset,
 )
-from predictor.format_reader import read_dataset, read_meta, read_split
+from trajectory_data.reader import read_dataset, read_meta, read_split
 
 # ---------------------------------------------------------------------------------------------
 # Round trip
@@ -257,7 +257,7 @@ def test_empty_set_is_valid() -> None:
 
 
 def test_format_module_does_not_import_torch() -> None:
-    code = "import sys, predictor.format; print('torch' in sys.modules)"
+    code = "import sys, trajectory_data.format; print('torch' in sys.modules)"
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, env=tool_env(), check=True
     )

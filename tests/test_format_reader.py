@@ -1,4 +1,4 @@
-"""Tests for predictor.format_reader: files that do not follow the contract, summaries,
+"""Tests for trajectory_data.reader: files that do not follow the contract, summaries,
 tools/inspect_data.py, and the schema versions (1 still reads; 2 with optional data)."""
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from conftest import (
     write_small_dataset,
 )
 
-from predictor.format import (
+from trajectory_data.format import (
     OPTIONAL_FIELDS,
     SPLITS,
     DatasetMeta,
@@ -27,7 +27,7 @@ from predictor.format import (
     TrajectorySet,
     write_dataset,
 )
-from predictor.format_reader import read_dataset, read_meta, read_split, summarize
+from trajectory_data.reader import read_dataset, read_meta, read_split, summarize
 
 # ---------------------------------------------------------------------------------------------
 # Reading: rejection of files that do not follow the contract

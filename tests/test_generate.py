@@ -17,10 +17,10 @@ from conftest import load_tool
 
 from pipeline import episode_runner, generation
 from pipeline.generation import GenerateConfig, default_output, generate_dataset, plan
-from predictor.format import OPTIONAL_FIELDS
-from predictor.format_reader import read_dataset, read_meta
 from scenarios import VERSIONS, rollout_batch
 from scenarios.rollout import rollout
+from trajectory_data.format import OPTIONAL_FIELDS
+from trajectory_data.reader import read_dataset, read_meta
 
 generate_tool = load_tool("generate.py")
 

@@ -18,8 +18,8 @@ import pytest
 from conftest import load_tool, run_tool, tool_env
 
 from pipeline import generation
-from predictor.format_reader import read_meta
 from scenarios import FAMILIES
+from trajectory_data.reader import read_meta
 
 REPO = Path(__file__).resolve().parents[1]
 TOOL = REPO / "tools" / "generate.py"

@@ -14,8 +14,8 @@ from conftest import load_tool, run_tool
 
 from pipeline import episode_runner
 from pipeline.generation import GenerateConfig, generate_dataset, plan
-from predictor.format_reader import read_dataset, read_split
 from scenarios.rollout import rollout_batch
+from trajectory_data.reader import read_dataset, read_split
 
 generate_tool = load_tool("generate.py")
 
@@ -86,7 +86,7 @@ def test_sharded_output_reads_as_the_single_file_and_each_shard_alone(sharded_pa
 def test_training_loader_gives_the_same_batches_from_the_index(sharded_pair):
     import torch
 
-    from predictor.data import TrajectoryDataset, make_loader
+    from trajectory_data.torch_dataset import TrajectoryDataset, make_loader
 
     index, single, _ = sharded_pair
     for split in ("train", "test"):

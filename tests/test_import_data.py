@@ -1,5 +1,5 @@
 """tools/import_data.py eth-ucy on small hand-made files in the raw ETH/UCY layout: windows
-counted by hand, read back through predictor.format, bad input refused in one line."""
+counted by hand, read back through trajectory_data.format, bad input refused in one line."""
 
 from __future__ import annotations
 
@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 from conftest import run_tool
 
-from pipeline.importers.common import ImportDataError, Tracks, frame_step
-from pipeline.importers.eth_ucy import EthUcyConfig, import_eth_ucy
-from pipeline.importers.interaction import InteractionConfig, import_interaction
-from predictor.data import TrajectoryDataset
 from predictor.evaluation import evaluate_baseline, evaluate_run
-from predictor.format import SPLITS
-from predictor.format_reader import read_dataset, read_split
 from predictor.presets import make_configs
 from predictor.training import train
+from trajectory_data.format import SPLITS
+from trajectory_data.importers.common import ImportDataError, Tracks, frame_step
+from trajectory_data.importers.eth_ucy import EthUcyConfig, import_eth_ucy
+from trajectory_data.importers.interaction import InteractionConfig, import_interaction
+from trajectory_data.reader import read_dataset, read_split
+from trajectory_data.torch_dataset import TrajectoryDataset
 
 
 def position(ped: int, grid: int) -> tuple[float, float]:

@@ -185,7 +185,7 @@ def test_halting_car_samples_show_the_leaders_stop_in_the_stop_case(tmp_path: Pa
     """On generated Halting Car v3 data: every `stop` scene marks the leader's (brown) stop
     where its recorded speed first falls under 0.5 m/s; no `go` scene marks one."""
     from pipeline.generation import GenerateConfig, generate_dataset
-    from predictor.format_reader import read_meta, read_split
+    from trajectory_data.reader import read_meta, read_split
 
     path = tmp_path / "hc.h5"
     config = GenerateConfig.for_scenario("halting_car_v3", num_major=2, num_minor=1, num_test=2)

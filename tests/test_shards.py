@@ -1,7 +1,8 @@
-"""Sharded datasets (predictor.shards, and the schema-3 checks of predictor.format): an index
-reads exactly as the single file of the same arrays would, through our reader and through h5py
-itself; every shard is a valid file alone; the folder can be moved; a missing, foreign or
-damaged shard is one line naming it; writing is atomic and never replaces what it should not."""
+"""Sharded datasets (trajectory_data.shards, and the schema-3 checks of
+trajectory_data.format): an index reads exactly as the single file of the same arrays would, through
+our reader and through h5py itself; every shard is a valid file alone; the folder can be moved; a
+missing, foreign or damaged shard is one line naming it; writing is atomic and never replaces what
+it should not."""
 
 from __future__ import annotations
 
@@ -15,9 +16,9 @@ import numpy as np
 import pytest
 from conftest import assert_sets_equal, make_meta, make_trajectory_set, one_line
 
-from predictor.format import SPLITS, FormatError, TrajectorySet, write_dataset
-from predictor.format_reader import read_dataset, read_meta, read_split, shard_files, summarize
-from predictor.shards import INDEX_NAME, ShardedWriter, shard_name
+from trajectory_data.format import SPLITS, FormatError, TrajectorySet, write_dataset
+from trajectory_data.reader import read_dataset, read_meta, read_split, shard_files, summarize
+from trajectory_data.shards import INDEX_NAME, ShardedWriter, shard_name
 
 COUNTS = {"train": 7, "val": 0, "test": 3}  # an empty split, and sizes 3 does not divide
 

@@ -526,8 +526,8 @@ def test_train_interrupted_in_the_first_epoch_keeps_nothing(smoke, tmp_path, cap
 
 def test_evaluation_library_matches_the_tool_and_an_independent_ade(smoke, tmp_path):
     from predictor.evaluation import evaluate_baseline, evaluate_run
-    from predictor.format_reader import read_split
     from predictor.predictions import load_predictions
+    from trajectory_data.reader import read_split
 
     evaluation = evaluate_run(smoke["run"], smoke["data"])
     assert evaluation.to_dict() == json.loads((smoke["run"] / "eval.json").read_text())

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 import torch
 
-from predictor.data import TrajectoryDataset, collate_batch
-from predictor.format import DatasetMeta, TrajectorySet, write_dataset
 from predictor.model import SmoothAttentionPredictor
 from predictor.presets import make_configs
 from predictor.run_files import RunError
 from predictor.run_state import resume_configs
 from predictor.training import train, train_step
+from trajectory_data.format import DatasetMeta, TrajectorySet, write_dataset
+from trajectory_data.torch_dataset import TrajectoryDataset, collate_batch
 
 torch.set_num_threads(1)
 

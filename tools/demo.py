@@ -46,12 +46,12 @@ from pipeline.generation import (
     generate_dataset,
 )
 from predictor.evaluation import EvaluationError, evaluate_baseline, evaluate_run
-from predictor.format_reader import read_meta, read_split
 from predictor.plots import plot_attention, plot_predictions, plot_samples, save_figure
 from predictor.presets import DEFAULT_PRESET, make_configs
 from predictor.run_files import RunError, RunWriteError
 from predictor.training import train
 from scenarios import env_module
+from trajectory_data.reader import read_meta, read_split
 
 DEMO_SCENARIO = DEFAULT_SCENARIO  # the generator's default (Double Merge v1)
 DEMO_DATA = {"num_major": 20, "minor_ratio": 0.3, "num_test": 10}  # small: trains in minutes

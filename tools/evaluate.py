@@ -58,7 +58,7 @@ from predictor.evaluation import (
     evaluate_baseline,
     evaluate_run,
 )
-from predictor.format import FormatError
+from trajectory_data.format import FormatError
 
 
 def parse_args(argv: list[str] | None = None):

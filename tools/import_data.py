@@ -8,13 +8,13 @@ eth-ucy: ROOT holds the scenes eth, hotel, univ, zara1, zara2, each with train/,
 folders of `frame ped x y` text files (the standard leave-one-out layout); writes
 OUT/eth_ucy_<scene>.h5 per scene: 8 observed + 12 predicted steps of 0.4 s, windows of 20 frames
 with stride 1, the pedestrians present in all 20 frames focal (scored). See
-pipeline/importers/eth_ucy.py.
+trajectory_data/importers/eth_ucy.py.
 
 interaction: INPUT files or folders (searched for *.csv) of INTERACTION track CSVs (columns
 case_id (optional), track_id, frame_id, timestamp_ms, agent_type, x, y, vx, vy, psi_rad, length,
 width); writes one file: 40 observed + 60 predicted steps of 0.1 s, a window every --stride
 frames, the agents present in all 100 frames focal, 80/10/10 train/val/test by sequence (a file,
-or a case_id of it). See pipeline/importers/interaction.py.
+or a case_id of it). See trajectory_data/importers/interaction.py.
 
 The data is read from disk as downloaded; nothing is fetched.
 
@@ -29,11 +29,11 @@ import argparse
 from pathlib import Path
 
 from pipeline.cli import INTERRUPTED, ArgumentParser, fail, run_main, write_failure_code
-from pipeline.importers.common import ImportDataError
-from pipeline.importers.eth_ucy import SCENES, EthUcyConfig, import_eth_ucy
-from pipeline.importers.interaction import InteractionConfig, import_interaction
-from predictor.format import FormatError
-from predictor.format_reader import summarize
+from trajectory_data.format import FormatError
+from trajectory_data.importers.common import ImportDataError
+from trajectory_data.importers.eth_ucy import SCENES, EthUcyConfig, import_eth_ucy
+from trajectory_data.importers.interaction import InteractionConfig, import_interaction
+from trajectory_data.reader import summarize
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

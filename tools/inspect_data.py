@@ -21,9 +21,9 @@ from __future__ import annotations
 
 from pipeline.cli import ArgumentParser, fail, require_file, run_main
 from predictor.baselines import GROUPINGS
-from predictor.format import FormatError
-from predictor.format_reader import read_meta, summarize
 from predictor.interaction_gain import CONTROLS, PENALTIES, format_gain_table, interaction_gain
+from trajectory_data.format import FormatError
+from trajectory_data.reader import read_meta, summarize
 
 
 def main(argv: list[str] | None = None) -> None:

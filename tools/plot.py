@@ -18,8 +18,6 @@ import argparse
 from matplotlib.backend_bases import FigureCanvasBase
 
 from pipeline.cli import ArgumentParser, check_output, fail, require_file, run_main, writing
-from predictor.format import SPLITS, FormatError
-from predictor.format_reader import read_meta, read_split
 from predictor.plots import (
     MAX_DPI,
     MAX_SAMPLES_PER_CASE,
@@ -31,6 +29,8 @@ from predictor.plots import (
     save_figure,
 )
 from predictor.predictions import PredictionsError, load_predictions
+from trajectory_data.format import SPLITS, FormatError
+from trajectory_data.reader import read_meta, read_split
 
 
 def _build_parser() -> ArgumentParser:

@@ -42,7 +42,6 @@ from pipeline.cli import (
 )
 from predictor.config import VARIANTS, ModelConfig, TrainConfig
 from predictor.evaluation import CheckpointError
-from predictor.format import FormatError
 from predictor.presets import DEFAULT_PRESET, PRESETS
 from predictor.run_files import RunError, RunWriteError
 from predictor.run_state import RESUME_MAY_CHANGE, ResumeMismatch, resume_configs, run_status
@@ -54,6 +53,7 @@ from predictor.training import (
     TrainingInterrupted,
     train,
 )
+from trajectory_data.format import FormatError
 
 MODEL_FIELDS = frozenset(item.name for item in fields(ModelConfig))
 EVERYDAY = ("epochs", "seed")  # TrainConfig fields with a flag of their own

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline.report.records import CASES, CaseNames
-from predictor.format import SPLITS
-from predictor.format_reader import read_meta, read_split
+from trajectory_data.format import SPLITS
+from trajectory_data.reader import read_meta, read_split
 
 
 @dataclass(frozen=True)

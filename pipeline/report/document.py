@@ -19,9 +19,9 @@ from pipeline.report import figures, markdown
 from pipeline.report.context import dataset_info, machine_info
 from pipeline.report.report_input import Report, ReportInput
 from pipeline.report.statistics import analyse, claims
-from predictor.format_reader import read_meta, read_split
 from predictor.plots import plot_samples
 from predictor.predictions import load_predictions
+from trajectory_data.reader import read_meta, read_split
 
 NOTES_FILE = "results_notes.md"  # the lead's discussion, beside the report, quoted verbatim
 FIGURE_SETTINGS = ("dm_r0.3", "hc_stop")  # settings whose scenes are drawn when run

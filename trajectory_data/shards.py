@@ -32,7 +32,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from predictor.format import (
+from trajectory_data.format import (
     FIELDS,
     FORMAT_NAME,
     INDEX_SCHEMA_VERSION,

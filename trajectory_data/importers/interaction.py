@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.importers.common import (
+from trajectory_data.format import SPLITS, DatasetMeta, TrajectorySet
+from trajectory_data.importers.common import (
     MAX_ID,
     ImportDataError,
     Tracks,
@@ -39,7 +40,6 @@ from pipeline.importers.common import (
     windows_set,
     write_all,
 )
-from predictor.format import SPLITS, DatasetMeta, TrajectorySet
 
 REQUIRED_COLUMNS = ("track_id", "frame_id", "timestamp_ms", "agent_type", "x", "y", "vx", "vy")
 NUMBER_COLUMNS = ("x", "y", "vx", "vy")

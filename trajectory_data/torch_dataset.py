@@ -1,7 +1,7 @@
 """Torch access to a trajectory file: an in-memory `TrajectoryDataset` and named `Batch`es.
 
 A dataset holds one split (optionally one case) of a trajectory file (schema 1 or 2), read and
-validated through `predictor.format`. `dataset[i]` is a `Batch` of one scene (batch size 1)
+validated through `trajectory_data.format`. `dataset[i]` is a `Batch` of one scene (batch size 1)
 with the scene's own agent count (`agent_counts`: the slots up to its last ever-present one);
 `collate_batch` concatenates such items along the batch axis, padding every scene to the
 largest agent count of the batch (not of the split) with absent slots. Layout is `[B, T, N, F]`,
@@ -21,8 +21,8 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, RandomSampler, Sampler, SequentialSampler
 
-from predictor.format import DatasetMeta, FormatError, TrajectorySet
-from predictor.format_reader import read_meta, read_split
+from trajectory_data.format import DatasetMeta, FormatError, TrajectorySet
+from trajectory_data.reader import read_meta, read_split
 
 # agent slots a dataset has at least: a split of one slot (e.g. ETH/UCY windows of one
 # pedestrian) gets an invalid, non-focal second slot, which changes no prediction and no metric

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from predictor.format import DatasetMeta, TrajectorySet, write_dataset
+from trajectory_data.format import DatasetMeta, TrajectorySet, write_dataset
 
 # ids (frames, agents, cases) are read as float64, exact up to 2**53; larger ones are refused
 MAX_ID = 2**53

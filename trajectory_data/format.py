@@ -1,6 +1,6 @@
 """Trajectory dataset format, schema v2: the contract (names, fields, versions), the in-memory
 `DatasetMeta` and `TrajectorySet` with their validation, and the writer. Reading (schema 1 and 2
-files, schema-3 indexes of shards) is `predictor.format_reader`.
+files, schema-3 indexes of shards) is `trajectory_data.reader`.
 
 The written contract is docs/dataset_format.md. One HDF5 file holds one scenario (or one real
 data set), split into `train`, `val` and `test`; each split is a `TrajectorySet` of time-major
@@ -19,10 +19,10 @@ same arrays whatever the source recorded. Code that needs real labels or states 
 A schema-1 file reads as schema 2 with everything recorded and the first two agent slots focal
 (`legacy_focal`), which is what the metrics of schema 1 scored.
 
-Schema 3 is the index of a sharded dataset (written by `predictor.shards`): a schema-2 file whose
-split datasets are HDF5 virtual datasets over shard files beside it, listed in the root attribute
-`shards`. It reads like one file; the reader first checks that every listed shard is there and
-holds the rows, dtypes and shapes the index maps (HDF5 itself would read a missing shard as
+Schema 3 is the index of a sharded dataset (written by `trajectory_data.shards`): a schema-2
+file whose split datasets are HDF5 virtual datasets over shard files beside it, listed in the root
+attribute `shards`. It reads like one file; the reader first checks that every listed shard is there
+and holds the rows, dtypes and shapes the index maps (HDF5 itself would read a missing shard as
 zeros) and fails with one line naming the shard otherwise.
 """
 
@@ -39,11 +39,11 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from predictor import __version__
+from trajectory_data import __version__
 
 FORMAT_NAME = "smooth-attention-trajectories"
 SCHEMA_VERSION = 2  # what `write_dataset` writes (a single file, or one shard)
-INDEX_SCHEMA_VERSION = 3  # an index of shards (`predictor.shards`): schema 2 plus `shards`
+INDEX_SCHEMA_VERSION = 3  # an index of shards (`trajectory_data.shards`): schema 2 plus `shards`
 SUPPORTED_VERSIONS = (1, 2, 3)  # what the reader reads
 SPLITS = ("train", "val", "test")
 STATE_NAMES = ("x", "y", "heading", "speed")  # the synthetic scenarios' (and schema 1's) states

@@ -29,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.importers.common import (
+from trajectory_data.format import SPLITS, DatasetMeta, TrajectorySet
+from trajectory_data.importers.common import (
     MAX_ID,
     ImportDataError,
     Tracks,
@@ -40,7 +41,6 @@ from pipeline.importers.common import (
     windows_set,
     write_all,
 )
-from predictor.format import SPLITS, DatasetMeta, TrajectorySet
 
 SCENES = ("eth", "hotel", "univ", "zara1", "zara2")
 

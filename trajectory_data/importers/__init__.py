@@ -1,4 +1,4 @@
-"""Importers of public trajectory data sets into the dataset format (`predictor.format`).
+"""Importers of public trajectory data sets into the dataset format (`trajectory_data.format`).
 
 Each importer reads the files as distributed (numpy only), cuts them into the windows of the
 data set's usual protocol and writes schema-2 files atomically (`common.write_all`). Malformed

@@ -1,4 +1,4 @@
-"""Reading the trajectory dataset format (`predictor.format`): schema 1 and 2 files and
+"""Reading the trajectory dataset format (`trajectory_data.format`): schema 1 and 2 files and
 schema-3 indexes of shards, each read validated into the in-memory `DatasetMeta` and
 `TrajectorySet`, or a one-line `FormatError` naming the file and the problem; and the
 human-readable summary of a file (`tools/inspect_data.py`).
@@ -17,7 +17,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from predictor.format import (
+from trajectory_data.format import (
     ACTION_NAMES,
     FIELDS,
     FORMAT_NAME,
