@@ -74,6 +74,7 @@ def train(
     settings: Mapping[str, Any] | None = None,
     epochs: int | None = None,
     seed: int | None = None,
+    device: str | None = None,
     resume: bool = False,
     overwrite: bool = False,
     progress: bool = True,
@@ -81,7 +82,8 @@ def train(
     """Train `variant` (default "ours") under `preset` (default `DEFAULT_PRESET`, agent),
     changed by `settings` ({"model.neighbours": "knn", "train.lr": 1e-3, ...}: the keys of
     `tools/train.py --list-settings`), on the dataset `data`, into the run directory `out`;
-    return `out`. `epochs` defaults to the preset's, `seed` to 0.
+    return `out`. `epochs` defaults to the preset's, `seed` to 0, `device` to "cpu" ("cuda" or
+    "cuda:N" where torch finds a CUDA device).
 
     With `resume`, the interrupted run in `out` continues with its stored configuration;
     arguments given must equal the stored ones, except `epochs` (and the settings
@@ -97,7 +99,9 @@ def train(
     """
     assignments = [f"{key}={_typed(value)}" for key, value in (settings or {}).items()]
     given = {
-        name: value for name, value in (("epochs", epochs), ("seed", seed)) if value is not None
+        name: value
+        for name, value in (("epochs", epochs), ("seed", seed), ("device", device))
+        if value is not None
     }
     if resume:
         values = parse_assignments(assignments)

@@ -61,6 +61,7 @@ HIGHWAY_SWITCHES = (
 )
 
 
+DEVICE = re.compile(r"cpu|cuda(:\d+)?")  # TrainConfig.device
 MAX_SEED = 2**63 - 1  # seeds are int64 (torch.manual_seed, the checkpoint's config)
 
 
@@ -357,6 +358,10 @@ class TrainConfig:
     # process (inductor caches it on disk). Needs a C++ compiler; validation and evaluation stay
     # eager. Off: eager, the runs recorded so far.
     compile_graph_step: bool = False
+    # Where training runs: "cpu", or "cuda" / "cuda:N" where torch finds a CUDA device (refused in
+    # one line where it does not). The same mathematics to float rounding; checkpoints are read
+    # onto the CPU, and evaluation runs there. How a run is computed, not what: not in its key.
+    device: str = "cpu"
 
     def __post_init__(self) -> None:
         require_finite(self)
@@ -435,6 +440,7 @@ TRAIN_RULES: dict[str, Rule] = {
     "threads": at_least(1),
     "lr_final_ratio": Rule("in [0, 1]", lambda v, _: 0 <= v <= 1),
     "main_agent_weight": above(0),
+    "device": Rule("'cpu', 'cuda' or 'cuda:N'", lambda v, _: DEVICE.fullmatch(v) is not None),
 }
 
 

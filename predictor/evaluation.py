@@ -125,6 +125,7 @@ def predict_model(
     means = [np.zeros((0, num_steps - num_observed, num_agents, 2), np.float32)]
     attentions = [np.zeros((0, num_steps - 1, num_agents, num_agents), np.float32)]
     model.eval()
+    batch = batch.to(next(model.parameters()).device)  # where the model is (training: its device)
     for start in range(0, batch.batch_size, batch_size):
         part = slice(start, start + batch_size)
         roles = None if batch.roles is None else batch.roles[part]
@@ -132,8 +133,8 @@ def predict_model(
             batch.positions[part], batch.valid[part], num_observed, batch.attention[part], roles
         )
         theta = torch.cat([out.attention[:, :-1], out.rollout_attention], 1)  # (b, T-1, N, N-1)
-        means.append(out.rollout.mean.numpy().astype(np.float32))
-        attentions.append(expand_attention(theta).numpy().astype(np.float32))
+        means.append(out.rollout.mean.cpu().numpy().astype(np.float32))
+        attentions.append(expand_attention(theta).cpu().numpy().astype(np.float32))
         if on_batch is not None:
             on_batch(len(theta))
     return np.concatenate(means), np.concatenate(attentions)

@@ -42,7 +42,12 @@ from predictor.stored_config import (
 )
 from trajectory_data.torch_dataset import Batch, TrajectoryDataset, make_loader
 
-RESUME_MAY_CHANGE = ("epochs", "threads", "eval_every")  # TrainConfig fields; nothing else may
+RESUME_MAY_CHANGE = (
+    "epochs",
+    "threads",
+    "eval_every",
+    "device",
+)  # TrainConfig fields; nothing else may
 
 
 class ResumeMismatch(RunError):
@@ -180,13 +185,15 @@ def build_state(
             scenes.roles,
             fit_maps=not model_cfg.attended_refit,
         )
+    device = torch.device(train_cfg.device)
+    model.to(device)  # after the statistics' fit on the CPU; a no-op there
     if train_cfg.compile_graph_step:
         problem = compiler_missing()
         if problem is not None:
             raise RunError(problem)
         compile_graph_step(model)
     optimizer = make_optimizer(model, train_cfg)
-    refit_scenes = train_set.all() if model_cfg.attended_refit else None
+    refit_scenes = train_set.all().to(device) if model_cfg.attended_refit else None
     loader = make_loader(
         train_set,
         train_cfg.batch_size,

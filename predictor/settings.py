@@ -35,6 +35,7 @@ NOT_SET = {
     "train.sequence_loss": "fixed by --variant",
     "train.seed": "use --seed",
     "train.epochs": "use --epochs",
+    "train.device": "use --device",
 }
 _FIELD_LINE = re.compile(r"^    (\w+): [^=]+=[^#]*(?:#\s?(.*))?$")
 

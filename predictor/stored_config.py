@@ -55,7 +55,7 @@ ADDED_TRAIN_FIELDS: dict[str, Any] = _added(TrainConfig, ORIGINAL_TRAIN_FIELDS)
 # TrainConfig fields that change how a run is computed, not what: the same mathematics to float
 # rounding (tested), so they are not part of a run's key, and a result row may hold runs of
 # either value (the reproduction records each run's in its eval.json)
-EXECUTION_FIELDS = ("compile_graph_step",)
+EXECUTION_FIELDS = ("compile_graph_step", "device")
 
 
 def config_key(config: ModelConfig | TrainConfig) -> dict[str, Any]:

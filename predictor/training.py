@@ -99,6 +99,16 @@ def learning_rate(config: TrainConfig, step: int, total_steps: int) -> float:
     return final + (config.lr - final) * 0.5 * (1.0 + math.cos(math.pi * progress))
 
 
+def check_device(device: str) -> None:
+    """RunError unless torch can train on `device` here (a CUDA device must be present)."""
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise RunError(f"train.device is {device!r}, but torch finds no CUDA device here")
+    if device.startswith("cuda:") and int(device[5:]) >= torch.cuda.device_count():
+        raise RunError(
+            f"train.device is {device!r}, but torch finds {torch.cuda.device_count()} CUDA devices"
+        )
+
+
 def train_step(
     model: SmoothAttentionPredictor,
     optimizer: torch.optim.Optimizer,
@@ -113,6 +123,7 @@ def train_step(
         group["lr"] = config.lr if lr is None else lr
     model.train()
     weights = loss_weights(config)
+    batch = batch.to(config.device)
     out = model(
         batch.positions,
         batch.valid,
@@ -285,6 +296,7 @@ def train(
     called before every optimiser step (for tests).
     """
     out = Path(out_dir)
+    check_device(train_cfg.device)
     check_out_dir(out, resume, overwrite)
     try:
         return _train(

@@ -314,7 +314,7 @@ def test_checkpoint_of_an_older_version_loads_with_the_behaviour_it_was_trained_
     assert "bucket_batches" in ADDED_TRAIN_FIELDS
     for name in ("neighbours", "neighbour_k", "highway_attended", "attention_gain"):
         del checkpoint["model_config"][name]  # as written before these fields existed
-    for name in ("bucket_batches", "compile_graph_step"):
+    for name in ("bucket_batches", "compile_graph_step", "device"):
         del checkpoint["train_config"][name]
     old = tmp_path / "old"
     shutil.copytree(smoke["run"], old)
@@ -326,6 +326,7 @@ def test_checkpoint_of_an_older_version_loads_with_the_behaviour_it_was_trained_
         torch.testing.assert_close(restored.state_dict()[name], value)
     _, train_config = resume_configs(old, {"epochs": 3})
     assert train_config.bucket_batches is False and train_config.epochs == 3
+    assert train_config.device == "cpu"  # a field added at its default: nothing listed for it
 
 
 def test_checkpoint_that_used_a_removed_option_is_refused_in_one_line(smoke, tmp_path: Path):
@@ -557,3 +558,30 @@ def test_evaluation_library_matches_the_tool_and_an_independent_ade(smoke, tmp_p
         "attention_accuracy",
         "diagnostics",
     }
+
+
+def test_a_cuda_device_where_torch_finds_none_is_one_line_and_writes_nothing(smoke, tmp_path):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA device")
+    run = tmp_path / "gpu"
+    result = run_tool("train.py", "--data", smoke["data"], "--out", run, "--device", "cuda")
+    assert result.returncode == 2 and not run.exists()
+    assert result.stderr == "error: train.device is 'cuda', but torch finds no CUDA device here\n"
+    bad = run_tool("train.py", "--data", smoke["data"], "--out", run, "--device", "gpu")
+    assert bad.returncode == 2 and "train.device must be 'cpu', 'cuda' or 'cuda:N'" in bad.stderr
+
+
+def test_an_explicit_cpu_device_trains_what_the_default_trains(smoke, tmp_path):
+    import torch
+
+    common = ["--data", smoke["data"], "--epochs", "1", "--preset", "paper", *TINY]
+    for name, extra in (("default", []), ("cpu", ["--device", "cpu"])):
+        assert run_tool("train.py", *common, "--out", tmp_path / name, *extra).returncode == 0
+    weights = [
+        torch.load(tmp_path / name / "last.pt", weights_only=True)["model_state"]
+        for name in ("default", "cpu")
+    ]
+    assert weights[0].keys() == weights[1].keys()
+    assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])

@@ -154,7 +154,7 @@ def test_a_changed_fixed_option_is_refused_naming_both_values(
     assert (code, out) == (2, "")
     assert err == (
         f"error: {message} (a resumed run keeps its configuration; only --epochs, train.threads, "
-        "train.eval_every may change)\n"
+        "train.eval_every, --device may change)\n"
     )
     assert files(run) == before  # nothing touched
 
@@ -276,7 +276,9 @@ def test_a_run_from_before_presets_and_finished_were_recorded(data, tmp_path, ca
     argv[argv.index("--preset") + 1] = "paper"
     code, _, err = run_train(argv, capsys)
     assert code == 2
-    assert err.startswith("error: --preset paper sets --attended-fit mean, but the stored run ")
+    assert err.startswith(
+        "error: --preset paper sets --set model.attended_fit=mean, but the stored run "
+    )
     assert "(its preset not recorded) has edge_relations" in err and err.count("\n") == 1
     with pytest.raises(ResumeMismatch) as info:
         resume_configs(cut, {"epochs": 2}, preset="crowd")

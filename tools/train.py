@@ -13,9 +13,9 @@ configuration as the run stores it.
 Resuming: an interrupted run continues bit-identically with the same command plus --resume.
 Settings the stored run fixes (--preset, --variant, --seed and every --set) may be repeated:
 equal to the stored value is fine, a different one is refused with one line naming both;
-settings left out keep the stored values. Only --epochs (more than done), train.threads and
-train.eval_every may change. --resume of a finished run says so and trains nothing (exit 0: the
-run the command asks for is there; a larger --epochs trains it further).
+settings left out keep the stored values. Only --epochs (more than done), --device,
+train.threads and train.eval_every may change. --resume of a finished run says so and trains
+nothing (exit 0: the run the command asks for is there; a larger --epochs trains it further).
 
 A run that fails or is interrupted before its first epoch ends leaves nothing behind; with
 --overwrite the previous run is put back as it was, and the message says so.
@@ -56,7 +56,7 @@ from predictor.training import (
 from trajectory_data.format import FormatError
 
 MODEL_FIELDS = frozenset(item.name for item in fields(ModelConfig))
-EVERYDAY = ("epochs", "seed")  # TrainConfig fields with a flag of their own
+EVERYDAY = ("epochs", "seed", "device")  # TrainConfig fields with a flag of their own
 MAY_CHANGE = ", ".join(
     f"--{name}" if name in EVERYDAY else f"train.{name}" for name in RESUME_MAY_CHANGE
 )
@@ -96,6 +96,12 @@ def parse_args(argv: list[str] | None = None):
         "--epochs", type=int, default=None, help="training epochs (default: the preset's)"
     )
     parser.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+    parser.add_argument(
+        "--device",
+        default=None,
+        help="where training runs: cpu (default), or cuda / cuda:N where torch finds a CUDA "
+        "device (evaluation runs on the CPU)",
+    )
     parser.add_argument(
         "--resume",
         action="store_true",
