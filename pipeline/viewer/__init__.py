@@ -69,7 +69,7 @@ def check_size(shown: Shown, limit: int = MAX_ARRAY_BYTES) -> None:
     fit = max(limit // per_scene, 1)
     raise ViewerError(
         f"{shown.n} scenes of {shown.data.num_agents} agent slots make about "
-        f"{per_scene * shown.n / 2**20:.0f} MB of arrays, more than a browser page should hold "
+        f"{per_scene * shown.n / 2**20:.1f} MB of arrays, more than a browser page should hold "
         f"({limit / 2**20:.0f} MB); keep the first scenes with --max-scenes (at most {fit} fit)"
     )
 
