@@ -1,10 +1,11 @@
 """A headless Chromium for the viewer's tests, driven by selenium; skips with the reason where
 the browser, its driver or selenium is missing (`.ci/run` installs Debian's chromium and
-chromium-driver when it can).
+chromium-driver when it can). The viewer's benchmark and the docs' screenshot use the same
+launcher (`find_chromium`, `launch`).
 
 The flags keep a machine without network quiet: no background connections, component updates
 or sync, and a fresh profile per browser. Every wait is for an explicit condition the page sets
-(`window.viewerReady`), never a fixed sleep.
+(`window.viewerReady`) or an effect of the input (`until`), never a fixed sleep.
 """
 
 from __future__ import annotations
@@ -14,8 +15,6 @@ import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-
-import pytest
 
 FLAGS = (
     "--headless",
@@ -33,8 +32,9 @@ BROWSERS = ("chromium", "chromium-browser", "google-chrome")
 WAIT_S = 60  # for a condition the page sets; generous for a loaded machine, never slept
 
 
-def _missing() -> tuple[str | None, str | None, str | None]:
-    """(browser, driver, reason to skip)."""
+def find_chromium() -> tuple[str | None, str | None, str | None]:
+    """(browser, driver, None) where both are on PATH and selenium imports, else
+    (None, None, the reason in one line)."""
     try:
         import selenium  # noqa: F401
     except ImportError:
@@ -50,18 +50,16 @@ def _missing() -> tuple[str | None, str | None, str | None]:
 
 
 @contextmanager
-def chromium() -> Iterator:
-    """A selenium WebDriver of a fresh headless Chromium; pytest.skip where there is none."""
-    browser, driver_path, reason = _missing()
-    if reason:
-        pytest.skip(reason)
+def launch(browser: str, driver_path: str, window: tuple[int, int] = (1400, 1000)) -> Iterator:
+    """A selenium WebDriver of a fresh headless Chromium with its own temporary profile."""
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
-    with tempfile.TemporaryDirectory(prefix="viewer-test-profile-") as profile:
+    with tempfile.TemporaryDirectory(prefix="viewer-browser-profile-") as profile:
         options = webdriver.ChromeOptions()
         options.binary_location = browser
-        for flag in (*FLAGS, f"--user-data-dir={profile}"):
+        size, own = f"--window-size={window[0]},{window[1]}", f"--user-data-dir={profile}"
+        for flag in (*(f for f in FLAGS if not f.startswith("--window-size=")), size, own):
             options.add_argument(flag)
         driver = webdriver.Chrome(options=options, service=Service(driver_path))
         try:
@@ -70,16 +68,32 @@ def chromium() -> Iterator:
             driver.quit()
 
 
+@contextmanager
+def chromium() -> Iterator:
+    """A selenium WebDriver of a fresh headless Chromium; pytest.skip where there is none."""
+    import pytest
+
+    browser, driver_path, reason = find_chromium()
+    if reason:
+        pytest.skip(reason)
+    with launch(browser, driver_path) as driver:
+        yield driver
+
+
 def open_page(driver, path: Path) -> None:
     """Load a viewer file and wait until it says it is ready (or fails with its message)."""
-    from selenium.webdriver.support.ui import WebDriverWait
-
     driver.get(path.resolve().as_uri())
-    WebDriverWait(driver, WAIT_S).until(
-        lambda d: d.execute_script("return window.viewerReady === true || !!window.viewerError")
-    )
+    until(driver, "return window.viewerReady === true || !!window.viewerError")
     error = driver.execute_script("return window.viewerError || null")
     assert error is None, error
+
+
+def until(driver, script: str, *args) -> None:
+    """Wait until the page's `script` (a JavaScript function body, `return ...`) is true:
+    input events reach the page asynchronously, so a test waits for their effect."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    WebDriverWait(driver, WAIT_S).until(lambda d: d.execute_script(script, *args))
 
 
 def pixel(driver, canvas_id: str, col: float, row: float) -> tuple[int, int, int]:
