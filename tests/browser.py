@@ -10,6 +10,7 @@ or sync, and a fresh profile per browser. Every wait is for an explicit conditio
 
 from __future__ import annotations
 
+import json
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -29,6 +30,7 @@ FLAGS = (
     "--window-size=1400,1000",
 )
 BROWSERS = ("chromium", "chromium-browser", "google-chrome")
+BROWSER_PAGES = ("chrome://", "chrome-untrusted://")  # the browser's own user interface
 WAIT_S = 60  # for a condition the page sets; generous for a loaded machine, never slept
 
 
@@ -51,7 +53,8 @@ def find_chromium() -> tuple[str | None, str | None, str | None]:
 
 @contextmanager
 def launch(browser: str, driver_path: str, window: tuple[int, int] = (1400, 1000)) -> Iterator:
-    """A selenium WebDriver of a fresh headless Chromium with its own temporary profile."""
+    """A selenium WebDriver of a fresh headless Chromium with its own temporary profile; its
+    DevTools performance log records every request the pages make (`requested`)."""
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -61,6 +64,7 @@ def launch(browser: str, driver_path: str, window: tuple[int, int] = (1400, 1000
         size, own = f"--window-size={window[0]},{window[1]}", f"--user-data-dir={profile}"
         for flag in (*(f for f in FLAGS if not f.startswith("--window-size=")), size, own):
             options.add_argument(flag)
+        options.set_capability("goog:loggingPrefs", {"performance": "ALL"})
         driver = webdriver.Chrome(options=options, service=Service(driver_path))
         try:
             yield driver
@@ -86,6 +90,19 @@ def open_page(driver, path: Path) -> None:
     until(driver, "return window.viewerReady === true || !!window.viewerError")
     error = driver.execute_script("return window.viewerError || null")
     assert error is None, error
+
+
+def requested(driver) -> list[str]:
+    """The URLs the browser requested since the last call (or its start), in order: the page's
+    own file and anything it loads (scripts, styles, fonts, images, fetches, frames), failed
+    ones too; not those of the browser's own pages (chrome://, e.g. a fresh browser's new tab,
+    and what they load)."""
+    events = (json.loads(entry["message"])["message"] for entry in driver.get_log("performance"))
+    sent = (e["params"] for e in events if e["method"] == "Network.requestWillBeSent")
+    urls = ((r["request"]["url"], r.get("documentURL", "")) for r in sent)
+    return [
+        u for u, page in urls if not (u.startswith(BROWSER_PAGES) or page.startswith(BROWSER_PAGES))
+    ]
 
 
 def until(driver, script: str, *args) -> None:

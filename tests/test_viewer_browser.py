@@ -1,7 +1,8 @@
 """The viewer in a real browser (headless Chromium, tests/browser.py): it draws every present car
 at the pixel the documented view transform puts it (computed here from the dataset), the slider
 and the arrow keys move them, clicking a car shows its attention with the predictions file's
-values, and the scene list sorts worst first; on a 100-scene split of 22 cars. Skipped, with the
+values, the scene list sorts worst first, and the page asks for nothing but itself (no
+network); on a 100-scene split of 22 cars. Skipped, with the
 reason, where Chromium, chromedriver or selenium is missing. How fast such a page opens is
 measured by benchmarks/bench_viewer.py, not here."""
 
@@ -12,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from browser import chromium, open_page, pixel, until
+from browser import chromium, open_page, pixel, requested, until
 from conftest import make_meta, make_trajectory_set
 from test_viewer import hand_scene_errors, make_files
 
@@ -201,6 +202,12 @@ def test_the_scene_list_sorts_worst_first_then_reverses(driver, hundred):
     wait_state(driver, "order", list(range(100)))
     press(driver, "\ue015", "\ue015")  # ArrowDown twice: the next scenes of the list
     wait_state(driver, "scene", 2)
+
+
+def test_the_page_asks_for_nothing_but_its_own_file(driver, hundred):
+    requested(driver)  # the earlier tests' requests
+    open_page(driver, hundred["page"])
+    assert requested(driver) == [hundred["page"].resolve().as_uri()]
 
 
 def test_data_without_a_road_draws_dots_on_a_plain_ground(driver, tmp_path):
