@@ -497,7 +497,7 @@ def test_cpu_model_reads_cpuinfo_or_falls_back(tmp_path):
     assert context.cpu_model(tmp_path / "missing") != ""
 
 
-def test_listed_figures_reads_plain_png_names_only(tmp_path):
+def test_listed_figures_reads_plain_png_and_html_names_only(tmp_path):
     from pipeline.report.document import listed_figures
 
     path = tmp_path / "results.json"
@@ -506,6 +506,7 @@ def test_listed_figures_reads_plain_png_names_only(tmp_path):
     assert listed_figures(path) == set()
     path.write_text(json.dumps({"runs": []}))  # a report older than the list
     assert listed_figures(path) == set()
-    names = ["bars_a.png", "../outside.png", "sub/b.png", "notes.md", 3]
-    path.write_text(json.dumps({"figures": {"bars": names, "size": ["size_study.png"]}}))
-    assert listed_figures(path) == {"bars_a.png", "size_study.png"}
+    names = ["bars_a.png", "../outside.png", "sub/b.png", "notes.md", 3, "../v.html"]
+    listed = {"bars": names, "size": ["size_study.png"], "viewers": ["view_a.html"]}
+    path.write_text(json.dumps({"figures": listed}))
+    assert listed_figures(path) == {"bars_a.png", "size_study.png", "view_a.html"}
