@@ -313,11 +313,21 @@ def test_the_tool_writes_the_page_and_refuses_to_replace_it(files, tmp_path):
 
 @pytest.mark.parametrize(
     "case",
-    ["missing data", "missing predictions", "other split", "not html", "zero scenes", "not npz"],
+    [
+        "missing data",
+        "missing predictions",
+        "other split",
+        "other dataset",
+        "not html",
+        "zero scenes",
+        "not npz",
+    ],
 )
 def test_the_tool_answers_bad_input_with_one_line_and_status_2(files, tmp_path, case):
     data, pred, out = str(files["data"]), str(files["ours"]), str(tmp_path / "v.html")
     (tmp_path / "bad.npz").write_text("not an archive")
+    other = tmp_path / "other.h5"  # a dataset of another scenario than the predictions'
+    write_dataset(other, make_meta(), {s: make_trajectory_set(2, seed=1) for s in ("test",)})
     argv, message = {
         "missing data": ([str(tmp_path / "no.h5"), "--out", out], "does not exist"),
         "missing predictions": (
@@ -325,6 +335,11 @@ def test_the_tool_answers_bad_input_with_one_line_and_status_2(files, tmp_path, 
             "predictions file",
         ),
         "other split": ([data, "--predictions", pred, "--split", "train", "--out", out], "train"),
+        "other dataset": (
+            [str(other), "--predictions", pred, "--out", out],
+            f"{pred} does not belong to {other}: scenario halting_car_v3, the dataset's is "
+            "unit_test",
+        ),
         "not html": ([data, "--out", str(tmp_path / "v.png")], "must end in .html"),
         "zero scenes": ([data, "--max-scenes", "0", "--out", out], "at least 1"),
         "not npz": ([data, "--predictions", str(tmp_path / "bad.npz"), "--out", out], "npz"),
