@@ -1,10 +1,10 @@
-"""The viewer in a real browser (headless Chromium, tests/browser.py): it draws every present car
-at the pixel the documented view transform puts it (computed here from the dataset), the slider
-and the arrow keys move them, clicking a car shows its attention with the predictions file's
-values, the scene list sorts worst first, and the page asks for nothing but itself (no
-network); on a 100-scene split of 22 cars. Skipped, with the
-reason, where Chromium, chromedriver or selenium is missing. How fast such a page opens is
-measured by benchmarks/bench_viewer.py, not here."""
+"""The viewer in a real browser (headless Chromium, tests/browser.py), on a 100-scene split of 22
+cars: it draws every present car at the pixel the documented view transform puts it (computed
+here from the dataset), the slider and the arrow keys move them, clicking a car shows its
+attention with the predictions file's values, the scene list sorts worst first, and the page
+asks for nothing but its own file (no network). Skipped, with the reason, where Chromium,
+chromedriver or selenium is missing. How fast such a page opens is measured by
+benchmarks/bench_viewer.py, not here."""
 
 from __future__ import annotations
 
