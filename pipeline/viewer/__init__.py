@@ -34,7 +34,7 @@ __all__ = [
 ]
 
 # The arrays a page may carry, as the browser holds them once inflated: a 100-scene split of 22
-# cars with predictions is 8.5 MB; this allows about 750 such scenes (docs/VIEWER.md).
+# cars with predictions is 8.5 MB; this allows about 780 such scenes (docs/VIEWER.md).
 MAX_ARRAY_BYTES = 64 * 2**20
 
 
