@@ -27,6 +27,7 @@ TOOLS = (
     "plot.py",
     "reproduce.py",
     "train.py",
+    "view.py",
 )
 TINY = [
     *("--set", "model.embed_dim=8", "--set", "model.edge_hidden=8"),
@@ -150,6 +151,12 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
             "error: interrupted; nothing was written",
         ),
         (
+            "view.py",
+            "pipeline.viewer.make_viewer",
+            ["{data}", "--predictions", "{pred}", "--out", "{tmp}/v.html"],
+            "error: interrupted",
+        ),
+        (
             "train.py",
             "predictor.training.build_state",
             ["--data", "{data}", "--out", "{tmp}/run"],
@@ -238,6 +245,7 @@ def _disk_full(monkeypatch) -> None:
     [
         ("evaluate.py", ["--baseline", "const_vel", "--data", "{data}", "--out", "{out}"], "{out}"),
         ("plot.py", ["predictions", "{pred}", "--out", "{out}"], "{out}"),
+        ("view.py", ["{data}", "--out", "{out}"], "{out}"),
         ("train.py", ["--data", "{data}", "--out", "{out}", "--epochs", "1", *TINY], None),
         (
             "generate.py",
@@ -249,7 +257,7 @@ def _disk_full(monkeypatch) -> None:
 def test_a_full_disk_is_failed_work_exit_1(
     inputs, tmp_path, capsys, monkeypatch, tool, args, written
 ):
-    out = tmp_path / ("out.png" if tool == "plot.py" else "out")
+    out = tmp_path / {"plot.py": "out.png", "view.py": "out.html"}.get(tool, "out")
     argv = [a.format(**inputs, out=out) for a in [*args, "--no-progress"]]
     if tool == "plot.py":
         argv.remove("--no-progress")

@@ -5,7 +5,10 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
+from browser import chromium, open_page, requested
 from conftest import load_tool, run_tool
+from test_viewer import page_content
 
 from predictor.baselines import constant_velocity
 from predictor.predictions import load_predictions
@@ -33,13 +36,20 @@ def test_demo_refuses_a_folder_it_did_not_write(tmp_path):
     assert not (tmp_path / "new").exists()
 
 
-def test_demo_writes_every_output_and_reports_both_predictors(tmp_path):
-    out = tmp_path / "demo"
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    """The demo of one epoch, into a folder an earlier demo left a stale file in."""
+    out = tmp_path_factory.mktemp("demo") / "demo"
     out.mkdir()
     (out / ".demo-output").write_text("an earlier demo's")
     (out / "stale.txt").write_text("from an earlier run")
     completed = run_tool("demo.py", "--out", out, "--epochs", "3", timeout=600)
     assert completed.returncode == 0, completed.stderr
+    return out, completed
+
+
+def test_demo_writes_every_output_and_reports_both_predictors(demo):
+    out, completed = demo
     last = completed.stdout.strip().splitlines()[-1]
     assert last.startswith("demo done in ") and last.endswith(f"results in {out}/")
 
@@ -53,6 +63,7 @@ def test_demo_writes_every_output_and_reports_both_predictors(tmp_path):
         "samples.png",
         "predictions.png",
         "attention.png",
+        "view.html",
         ".demo-output",
     }
     assert {p.name for p in out.iterdir()} == expected  # the stale file went with the old run
@@ -86,6 +97,29 @@ def test_demo_writes_every_output_and_reports_both_predictors(tmp_path):
     assert ours["main_agents"]["overall"]["ade"] < ade
     assert ours["all_agents"]["overall"]["ade"] < everyone
     assert ours["attention_accuracy"]["overall"]["accuracy"] >= 0.5
+
+
+def test_demo_writes_a_viewer_of_its_test_split_and_predictions(demo):
+    out, completed = demo
+    spec, arrays = page_content((out / "view.html").read_text())
+    data, predictions = out / "double_merge_v1.h5", load_predictions(out / "predictions.npz")
+    test = read_split(data, "test")
+    assert spec["shown"] == spec["available"] == test.n == 20
+    assert np.array_equal(arrays["xy"], test.states[..., :2])
+    assert np.array_equal(arrays["pred"], predictions.pred_mean)
+    assert spec["source"]["predictions"] == "predictions.npz"
+    assert spec["source"]["run"].startswith(f"run {out / 'run_ours'}: ours (")
+    assert f"{out / 'view.html'}: 20 of 20 test scenes, predictions of ours;" in completed.stdout
+
+
+def test_the_demos_viewer_opens_from_disk_and_loads_nothing_else(demo):
+    out, _ = demo
+    with chromium() as driver:
+        requested(driver)  # what the fresh browser did before: not the page's
+        open_page(driver, out / "view.html")
+        # the page's own file is all it asks for: no script, style, font or image requests
+        assert requested(driver) == [(out / "view.html").resolve().as_uri()]
+        assert len(driver.find_elements("css selector", "#scenes tbody tr")) == 20
 
 
 def assert_frames_explain_themselves(gif) -> None:

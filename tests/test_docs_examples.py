@@ -26,6 +26,7 @@ PLAN = {  # (doc, index of its bash block) -> how the test treats it
     ("SCALING.md", 2): (SKIP, "needs a Ray cluster (HEAD_IP)"),
     ("SCALING.md", 3): (SKIP, "needs a Ray cluster (HEAD_IP)"),
     ("SCALING.md", 4): (SKIP, "hours of training (the reproduction on Ray)"),
+    ("VIEWER.md", 0): "train FILE.h5",
 }
 
 

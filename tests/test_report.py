@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import write_predictions_npz
+from conftest import make_meta, make_trajectory_set, write_predictions_npz
 from scipy import stats
 
 from pipeline.protocol import SETTING_BY_NAME, Protocol
@@ -27,6 +27,7 @@ from pipeline.report.records import (
     WelchTest,
 )
 from predictor.predictions import load_predictions
+from trajectory_data.format import write_dataset
 
 MAJOR_ADE = Measure("ade", "major")
 MINOR_ADE = Measure("ade", "minor")
@@ -497,7 +498,7 @@ def test_cpu_model_reads_cpuinfo_or_falls_back(tmp_path):
     assert context.cpu_model(tmp_path / "missing") != ""
 
 
-def test_listed_figures_reads_plain_png_names_only(tmp_path):
+def test_listed_figures_reads_plain_png_and_html_names_only(tmp_path):
     from pipeline.report.document import listed_figures
 
     path = tmp_path / "results.json"
@@ -506,6 +507,39 @@ def test_listed_figures_reads_plain_png_names_only(tmp_path):
     assert listed_figures(path) == set()
     path.write_text(json.dumps({"runs": []}))  # a report older than the list
     assert listed_figures(path) == set()
-    names = ["bars_a.png", "../outside.png", "sub/b.png", "notes.md", 3]
-    path.write_text(json.dumps({"figures": {"bars": names, "size": ["size_study.png"]}}))
-    assert listed_figures(path) == {"bars_a.png", "size_study.png"}
+    names = ["bars_a.png", "../outside.png", "sub/b.png", "notes.md", 3, "../v.html"]
+    listed = {"bars": names, "size": ["size_study.png"], "viewers": ["view_a.html"]}
+    path.write_text(json.dumps({"figures": listed}))
+    assert listed_figures(path) == {"bars_a.png", "size_study.png", "view_a.html"}
+
+
+def test_viewers_of_the_main_settings_whose_scene_files_match_their_dataset(tmp_path, capsys):
+    """dm_r0.3's scene file belongs to its dataset: a page of its scenes; hc_stop's dataset is
+    another draw: one line on stderr and no page; dm_r0.8 is not a figure setting: no page."""
+    from types import SimpleNamespace
+
+    from test_viewer import page_content
+
+    from pipeline.report.document import write_viewers
+
+    data = {}
+    for seed in (0, 1):
+        sets = {s: make_trajectory_set(3, 10, 4, seed=seed) for s in ("train", "val", "test")}
+        data[seed] = write_dataset(tmp_path / f"d{seed}.h5", make_meta(), sets)
+    scenes = {"ours": str(write_predictions_npz(tmp_path / "ours.npz", seed=0)), "s_attn": ""}
+    names = ("dm_r0.3", "hc_stop", "dm_r0.8")
+    source = SimpleNamespace(
+        protocol=SimpleNamespace(settings=[SimpleNamespace(name=n) for n in names]),
+        data_paths={"dm_r0.3": data[0], "hc_stop": data[1], "dm_r0.8": data[0]},
+        scene_files=dict.fromkeys(names, scenes),
+    )
+    out = tmp_path / "results"
+    out.mkdir()
+    assert write_viewers(source, out) == ("view_dm_r0.3.html",)
+    assert [p.name for p in out.iterdir()] == ["view_dm_r0.3.html"]
+    spec, arrays = page_content((out / "view_dm_r0.3.html").read_text())
+    assert spec["source"]["predictor"] == "ours" and spec["title"].startswith("dm_r0.3: ")
+    assert np.array_equal(arrays["xy"], make_trajectory_set(3, 10, 4, seed=0).states[..., :2])
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("report: no viewer of hc_stop: ")
+    assert "has other positions than the dataset's" in err

@@ -17,10 +17,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from browser import chromium, open_page, requested
 from conftest import REPO_ROOT, load_tool, run_tool, tool_env
 from scipy import stats
+from test_viewer import page_content
 
 from predictor.evaluation import read_checkpoint
+from trajectory_data.reader import read_split
 
 reproduce = load_tool("reproduce.py")
 
@@ -157,7 +160,38 @@ def test_quick_run_writes_the_figures(quick):
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
         assert f"(results/{name})" in quick["markdown_first"]
     listed = [name for names in quick["json"]["figures"].values() for name in names]
-    assert sorted(listed) == sorted(expected)
+    assert sorted(listed) == sorted(expected | set(VIEWERS.values()))
+
+
+VIEWERS = {setting: f"view_{setting}.html" for setting in ("dm_r0.3", "hc_stop")}
+
+
+def test_quick_run_writes_a_viewer_of_the_figure_scenes_and_links_it(quick):
+    """Per main setting, the viewer of its test scenes drawn in the report (per case the first
+    with an interaction period, else the first) with Ours' predictions, linked from the
+    markdown."""
+    for setting, name in VIEWERS.items():
+        page = quick["results"].parent / "results" / name
+        spec, arrays = page_content(page.read_text())
+        test = read_split(quick["cache"] / "data" / spec["source"]["data"], "test")
+        first = []
+        for case in range(len(spec["case_names"])):
+            rows = np.flatnonzero(test.case == case)
+            busy = [k for k in rows if test.interaction[k].any()]
+            first.append(int((busy or rows)[0]))
+        assert spec["scenes"]["row"] == first, setting
+        assert np.array_equal(arrays["xy"], test.states[first, ..., :2])
+        assert spec["source"]["predictor"] == "ours" and arrays["attention"].shape[0] == 2
+        assert f"[`{setting}`](results/{name})" in quick["markdown_first"]
+
+
+def test_the_reproductions_viewer_opens_from_disk_and_asks_for_nothing_else(quick):
+    page = quick["results"].parent / "results" / VIEWERS["hc_stop"]
+    with chromium() as driver:
+        requested(driver)
+        open_page(driver, page)
+        assert requested(driver) == [page.resolve().as_uri()]
+        assert len(driver.find_elements("css selector", "#scenes tbody tr")) == 2
 
 
 def test_rerun_removes_the_stale_figures_its_report_listed_only(quick):

@@ -3,11 +3,13 @@
 1. simulate a Double Merge episode and write a picture and a GIF of it;
 2. generate a small Double Merge dataset (20 major + 6 minor training/validation trajectories,
    10 test trajectories per case);
-3. train the smooth-attention predictor (`ours`, the default preset `agent_zero_cv`) briefly
+3. train the smooth-attention predictor (`ours`, the default preset `agent`) briefly
    (20 epochs; the paper trains 200);
 4. evaluate it and the constant-velocity baseline on the test split;
 5. plot sample trajectories, predicted against true trajectories, and the attention of one main
-   car on the other over time.
+   car on the other over time;
+6. write view.html, the viewer of the test split with the predictor's predictions and attention
+   (one HTML file: open it in a browser, no server or network needed; docs/VIEWER.md).
 
 Usage: python tools/demo.py [--out outputs/demo] [--epochs 20] [--seed 0] [--overwrite]
 Everything goes under --out, which a rerun replaces; the last line says where. A folder that
@@ -45,6 +47,7 @@ from pipeline.generation import (
     UnsafeExpertError,
     generate_dataset,
 )
+from pipeline.viewer import ViewerError, write_viewer
 from predictor.evaluation import EvaluationError, evaluate_baseline, evaluate_run
 from predictor.plots import plot_attention, plot_predictions, plot_samples, save_figure
 from predictor.presets import DEFAULT_PRESET, make_configs
@@ -69,6 +72,7 @@ DEMO_FILES = frozenset(
         "samples.png",
         "predictions.png",
         "attention.png",
+        "view.html",
     }
 )
 
@@ -160,12 +164,12 @@ def main(argv: list[str] | None = None) -> None:
         fail(str(err), write_failure_code(err.errno))
     except OSError as err:
         fail(f"cannot write in {out}: {err.strerror or err}", write_failure_code(err.errno))
-    except (UnsafeExpertError, RunError, EvaluationError) as err:  # the defaults failed
+    except (UnsafeExpertError, RunError, EvaluationError, ViewerError) as err:  # defaults failed
         fail(str(err), FAILED)
 
 
 def run_demo(out: Path, config: GenerateConfig, model_cfg, train_cfg) -> None:
-    """The demo's five steps into the emptied folder `out`: a line on stdout as each starts and
+    """The demo's six steps into the emptied folder `out`: a line on stdout as each starts and
     the results on its last line; bars and status lines on stderr."""
     started = time.perf_counter()
     print(f"== simulate: wrote {simulate_episode(out, config.seed)}", flush=True)
@@ -189,6 +193,10 @@ def run_demo(out: Path, config: GenerateConfig, model_cfg, train_cfg) -> None:
     write_figure(out / "samples.png", plot_samples(read_split(data, "train"), read_meta(data)))
     write_figure(out / "predictions.png", plot_predictions(ours.predictions, 0))
     write_figure(out / "attention.png", plot_attention(ours.predictions, 0, 0, 1))
+    print("== view", flush=True)
+    page = out / "view.html"
+    viewer = write_viewer(data, page, predictions=out / "predictions.npz", run=run)
+    print(f"{viewer.summary(page)}: open it in a browser", flush=True)
     scores = [e.to_dict() for e in (ours, const_vel)]
     main, every = (
         [s[key]["overall"]["ade"] for s in scores] for key in ("main_agents", "all_agents")

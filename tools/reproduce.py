@@ -9,8 +9,9 @@ Examples:
     python tools/reproduce.py --compare-presets agent_zero_cv,paper@main --seeds 5
 
 The report goes to OUT_DIR/RESULTS.md (default outputs/reproduce/RESULTS.md), with
-results.json and the figures (results/) beside it; `--report docs/RESULTS.md --overwrite`
-replaces the repository's published one.
+results.json and the figures (results/) beside it, and there too a viewer page of each main
+setting's drawn scenes (view_<setting>.html: one HTML file, opens from disk in a browser);
+`--report docs/RESULTS.md --overwrite` replaces the repository's published one.
 
 Protocol (paper, Sec. V; pipeline/reproduction.py): for every setting one dataset is generated
 with dataset seed 0 (so all variants and seeds see the same trajectories); each trained variant

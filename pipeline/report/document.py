@@ -1,14 +1,16 @@
 """A reproduction's report: RESULTS.md, results.json beside it and the figures in results/.
 
 `write_report(ReportInput, path)` gathers the statistics (statistics.analyse), the datasets'
-and the machine's description (context), draws the figures (figures) and writes the markdown
-(markdown.render) and the JSON, each file atomically.
+and the machine's description (context), draws the figures (figures), writes a viewer page of
+each figure setting's scenes (pipeline.viewer) and writes the markdown (markdown.render) and
+the JSON, each file atomically.
 """
 
 from __future__ import annotations
 
 import datetime
 import json
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -19,6 +21,7 @@ from pipeline.report import figures, markdown
 from pipeline.report.context import dataset_info, machine_info
 from pipeline.report.report_input import Report, ReportInput
 from pipeline.report.statistics import analyse, claims
+from pipeline.viewer import ViewerError, write_viewer
 from predictor.plots import plot_samples
 from predictor.predictions import load_predictions
 from trajectory_data.reader import read_meta, read_split
@@ -71,8 +74,7 @@ def draw_figures(report: Report, out: Path) -> dict[str, tuple[str, ...]]:
         keep(
             "size", figures.size_figure(results, size, labels, protocol.variants), "size_study.png"
         )
-    drawn = [s.name for s in protocol.settings if s.name in source.scene_files]
-    for setting in [s for s in drawn if s in FIGURE_SETTINGS] or drawn[:1]:
+    for setting in scene_settings(source):
         files = source.scene_files[setting]
         ours, other = load_predictions(files["ours"]), load_predictions(files["s_attn"])
         case_names = report.datasets[setting].case_names
@@ -90,7 +92,39 @@ def draw_figures(report: Report, out: Path) -> dict[str, tuple[str, ...]]:
         path = source.data_paths[next(s.name for s in protocol.settings if s.scenario == scenario)]
         fig = plot_samples(read_split(path, "test"), read_meta(path), num_per_case=2)
         keep("samples", fig, f"samples_{scenario}.png")
+    viewers = write_viewers(source, out)
+    if viewers:
+        shown["viewers"] = viewers
     return shown
+
+
+def scene_settings(source: ReportInput) -> list[str]:
+    """The settings whose figure scenes are drawn: FIGURE_SETTINGS where they have scene files,
+    else the first setting that has them."""
+    drawn = [s.name for s in source.protocol.settings if s.name in source.scene_files]
+    return [s for s in drawn if s in FIGURE_SETTINGS] or drawn[:1]
+
+
+def write_viewers(source: ReportInput, out: Path) -> tuple[str, ...]:
+    """For each setting whose scenes are drawn, `view_<setting>.html` under `out`: the viewer
+    of those test scenes with Ours' predictions and attention (training seed 0). A scene file
+    that does not belong to the setting's dataset gets a line on stderr and no page."""
+    names = []
+    for setting in scene_settings(source):
+        name = f"view_{setting}.html"
+        title = f"{setting}: the report's test scenes, Ours (training seed 0)"
+        try:
+            write_viewer(
+                source.data_paths[setting],
+                out / name,
+                predictions=source.scene_files[setting]["ours"],
+                title=title,
+            )
+        except ViewerError as err:
+            print(f"report: no viewer of {setting}: {err}", file=sys.stderr, flush=True)
+            continue
+        names.append(name)
+    return tuple(names)
 
 
 def write_report(source: ReportInput, path: Path) -> int:
@@ -116,11 +150,16 @@ def write_report(source: ReportInput, path: Path) -> int:
 
 
 def listed_figures(results_json: Path) -> set[str]:
-    """The figure files (plain .png names in results/) a report's results.json lists; none if
-    the file is missing, unreadable or older than the list (then nothing is removed)."""
+    """The figure and viewer files (plain .png and .html names in results/) a report's
+    results.json lists; none if the file is missing, unreadable or older than the list (then
+    nothing is removed)."""
     try:
         listed = json.loads(results_json.read_text()).get("figures", {})
         names = [name for section in listed.values() for name in section]
     except (OSError, ValueError, AttributeError, TypeError):
         return set()
-    return {n for n in names if isinstance(n, str) and Path(n).name == n and n.endswith(".png")}
+    return {
+        n
+        for n in names
+        if isinstance(n, str) and Path(n).name == n and n.endswith((".png", ".html"))
+    }

@@ -409,6 +409,19 @@ def setting_section(report: Report, setting) -> list[str]:
     return parts
 
 
+def viewer_lines(names: Sequence[str]) -> list[str]:
+    """The links to the viewer pages of the drawn scenes (`view_<setting>.html`)."""
+    if not names:
+        return []
+    links = ", ".join(
+        f"[`{n.removeprefix('view_').removesuffix('.html')}`](results/{n})" for n in names
+    )
+    return [
+        f"These scenes in the viewer, with Ours' predictions and attention at every step: {links} "
+        "(one HTML file each; it opens from disk in a browser, no server or network needed).\n"
+    ]
+
+
 def render(report: Report, notes: str | None, notes_name: str) -> str:
     """The markdown text; `notes` (the lead's discussion, verbatim) ends it when given."""
     protocol, counts = report.input.protocol, report.input.counts
@@ -447,6 +460,7 @@ def render(report: Report, notes: str | None, notes_name: str) -> str:
     parts += [f"![scene](results/{name})\n" for name in report.figures.get("scenes", [])] or [
         "_Needs Ours and S-Attn (seed 0) of at least one setting._"
     ]
+    parts += viewer_lines(report.figures.get("viewers", ()))
     parts.append("\n## Sample trajectories (test split, ground-truth experts)\n")
     parts += [f"![samples](results/{name})\n" for name in report.figures.get("samples", [])]
     parts += [
