@@ -191,7 +191,7 @@ def test_closed_stdout_ends_quietly(smoke):
         (
             "train.py",
             ["--data", "{data}", "--out", "{tmp}/r", "--epochs", "0"],
-            "TrainConfig.epochs must be >= 1, got 0",
+            "train.epochs must be >= 1, got 0",
         ),
         (
             "train.py",
