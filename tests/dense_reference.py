@@ -17,8 +17,8 @@ from torch import Tensor
 
 from predictor.agent_frame import AgentFrame, rotate
 from predictor.model import SmoothAttentionPredictor
+from predictor.model.pass_inputs import PassInputs as _Steps
 from predictor.outputs import RecurrentState, StepOutputs, edge_index
-from predictor.pass_inputs import PassInputs as _Steps
 
 
 def edge_present(present: Tensor, head: Tensor) -> Tensor:

@@ -18,7 +18,7 @@ from torch import Tensor
 from predictor.agent_frame import AgentFrame, own_features, pair_features, rotate
 from predictor.config import ModelConfig
 from predictor.graph import Graph
-from predictor.highway_maps import MIN_STAT_STD
+from predictor.model.highway_maps import MIN_STAT_STD
 
 # agent-frame features, 2 each: own position, own velocity, relative position, relative velocity
 NUM_FEATURES = 8

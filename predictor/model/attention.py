@@ -18,7 +18,7 @@ from predictor.config import ModelConfig
 from predictor.graph import Graph, role_balance, segment_softmax, segment_uniform
 
 if TYPE_CHECKING:
-    from predictor.pass_inputs import PassInputs as _Steps
+    from predictor.model.pass_inputs import PassInputs as _Steps
 
 
 @dataclass

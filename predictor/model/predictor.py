@@ -66,11 +66,13 @@ from predictor.agent_frame import (
     rotate,
     rotate_tril,
 )
-from predictor.attention import GraphAttention, Presence
 from predictor.config import ModelConfig
 from predictor.graph import Graph, neighbour_graph
-from predictor.highway_maps import HighwayMaps
-from predictor.input_statistics import InputStatistics
+from predictor.model.attention import GraphAttention, Presence
+from predictor.model.highway_maps import HighwayMaps
+from predictor.model.input_statistics import InputStatistics
+from predictor.model.pass_inputs import PassInputs as _Steps
+from predictor.model.pass_inputs import prepare_pass
 from predictor.outputs import (
     Gaussian2D,
     ModelOutput,
@@ -78,8 +80,6 @@ from predictor.outputs import (
     Rollout,
     StepOutputs,
 )
-from predictor.pass_inputs import PassInputs as _Steps
-from predictor.pass_inputs import prepare_pass
 
 MAX_LOG_GAIN = 12.0  # cap of log(std excess / initial excess): stds stay finite
 

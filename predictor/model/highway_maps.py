@@ -36,7 +36,7 @@ from predictor.highway_fit import change_bounds, fit_cross_fitted
 from predictor.outputs import edge_index
 
 if TYPE_CHECKING:  # annotations only: the model module imports this one
-    from predictor.pass_inputs import PassInputs as _Steps
+    from predictor.model.pass_inputs import PassInputs as _Steps
 
 MIN_STAT_STD = 1e-4  # floor of the fitted standard deviations (in metres)
 # "edge_relations": a relation holding less of an agent's attention than this is not fitted on
