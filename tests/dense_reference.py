@@ -110,16 +110,17 @@ class DensePredictor(SmoothAttentionPredictor):
         attended = (theta.unsqueeze(-1) * o_edge).sum(-2)  # (S, B, N, H)
         node_in = torch.cat([self.f_embed(own), attended, o_self], -1)  # (S, B, N, E+2H)
         o_node, h_node = self.g_pred(node_in.flatten(1, 2), state.node)  # (S, B*N, Hn)
-        raw = self._raw_outputs(o_node, anchor is not None)
+        head = self.head  # the packed model's output head (predictor.model.head), unchanged
+        raw = head.raw_outputs(o_node, anchor is not None)
         raw = raw.view(num_steps, batch, num_agents, 5)  # (S, B, N, 5)
         if anchor is not None:
-            gaussian = self._agent_gaussian(raw, pos + anchor, steps.frame[1], self.anchor_std)
+            gaussian = head.gaussian(raw, pos + anchor, steps.frame[1], head.anchor_std)
         elif steps.frame is None:
             base = pos + (pos - prev_pos) if cfg.mean_prior == "velocity" else pos  # (S, B, N, 2)
-            gaussian = self._gaussian(raw, base)
+            gaussian = head.gaussian(raw, base, None)
         else:
             base = pos + (pos - prev_pos) if cfg.mean_prior == "velocity" else pos  # (S, B, N, 2)
-            gaussian = self._agent_gaussian(raw, base, steps.frame[1])
+            gaussian = head.gaussian(raw, base, steps.frame[1])
         return StepOutputs(gaussian, theta, RecurrentState(h_edge, h_self, h_node))
 
     def _agent_inputs(

@@ -238,7 +238,7 @@ def live_heads(model: SmoothAttentionPredictor) -> SmoothAttentionPredictor:
     """The model with fixed nonzero output heads (they start at zero, which would make every
     prediction the prior whatever the graph)."""
     with torch.no_grad():
-        for head in (model.f_pred, model.f_cov, model.f_roll):
+        for head in (model.head.f_pred, model.head.f_cov, model.head.f_roll):
             if head is not None:
                 pattern = torch.linspace(-0.2, 0.2, head.weight.numel())
                 head.weight.copy_(pattern.view_as(head.weight))

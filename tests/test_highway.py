@@ -365,7 +365,7 @@ def test_attended_highway_starts_as_the_plain_highway_and_reads_the_attention():
             model.attended_std,
             weight[0].expand(20, 3, -1, -1, -1),
         )[:, :, 0]
-        * model.anchor_std
+        * model.head.anchor_std
     )  # agent frame
     world = torch.stack(
         [

@@ -33,12 +33,12 @@ from predictor.highway import (
     velocity_changes,
 )
 from predictor.highway_fit import change_bounds, fit_cross_fitted
+from predictor.model.statistics import MIN_STAT_STD
 from predictor.outputs import edge_index
 
 if TYPE_CHECKING:  # annotations only: the model module imports this one
     from predictor.model.pass_inputs import PassInputs as _Steps
 
-MIN_STAT_STD = 1e-4  # floor of the fitted standard deviations (in metres)
 # "edge_relations": a relation holding less of an agent's attention than this is not fitted on
 # for that agent (its rows would carry no weight; the ridge needs positive weights)
 MIN_RELATION_SHARE = 1e-6
@@ -195,7 +195,7 @@ class HighwayMaps:
         change = attended_changes(
             features, mask, theta, self.attended_mean, self.attended_std, weight
         )
-        return change * self.anchor_std  # (B, N, horizon, 2)
+        return change * self.head.anchor_std  # (B, N, horizon, 2)
 
     def _edge_relation_changes(
         self,
@@ -229,7 +229,7 @@ class HighwayMaps:
                 "bnf,bnfkc->bnkc", attended[side], self._attended_maps(steps, slots[side])
             )
             reading = clamp_changes(
-                own + read * self.anchor_std,
+                own + read * self.head.anchor_std,
                 self.highway_low[slots[side]],
                 self.highway_high[slots[side]],
             )
@@ -295,7 +295,7 @@ class HighwayMaps:
             cfg.highway_min_std,
         )
         split = own.shape[-1]
-        scale = self.anchor_std.view(1, 1, 1, 2)  # attended maps are in units of anchor_std
+        scale = self.head.anchor_std.view(1, 1, 1, 2)  # attended maps are in units of anchor_std
         self.highway_weight.copy_(weight[:, :split])
         self.highway_bias.copy_(bias)
         self.highway_fold_weight.copy_(fold_weight[:, :, :split])

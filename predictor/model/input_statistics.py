@@ -1,10 +1,10 @@
-"""The predictor's input and output scales: fitted on the training split (`fit_normalisation`,
-kept as buffers in the checkpoint) or the paper model's car constants, and the standardised
-agent-frame inputs and edge embeddings that use them.
+"""The predictor's input scales: fitted on the training split (`fit_normalisation`, kept as
+buffers in the checkpoint) or the paper model's car constants, and the standardised agent-frame
+inputs and edge embeddings that use them.
 
 `InputStatistics` is a mixin of `SmoothAttentionPredictor` (predictor.model), which owns the
 layers it reads (`f_interact`) and the pass it calls (`_prepare`); the buffers it writes
-(`input_mean`, `input_std`, `offset_std`, `anchor_std`) are registered here
+(`input_mean`, `input_std`) are registered here
 (`_register_statistics`, called by the model's constructor). The highway's fit
 (`_fit_highway`) is in predictor.highway_maps.
 """
@@ -15,10 +15,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from predictor.agent_frame import AgentFrame, own_features, pair_features, rotate
+from predictor.agent_frame import AgentFrame, own_features, pair_features
 from predictor.config import ModelConfig
 from predictor.graph import Graph
-from predictor.model.highway_maps import MIN_STAT_STD
+from predictor.model.statistics import MIN_STAT_STD
 
 # agent-frame features, 2 each: own position, own velocity, relative position, relative velocity
 NUM_FEATURES = 8
@@ -37,8 +37,6 @@ class InputStatistics:
             return
         self.register_buffer("input_mean", torch.zeros(NUM_FEATURES))
         self.register_buffer("input_std", torch.ones(NUM_FEATURES))
-        self.register_buffer("offset_std", torch.ones(2))
-        self.register_buffer("anchor_std", torch.ones(2))
         self._default_normalisation()
 
     def _agent_inputs(
@@ -68,19 +66,15 @@ class InputStatistics:
         roles: Tensor | None = None,
         fit_maps: bool = True,
     ) -> None:
-        """Set the input means/stds (if `standardise`) and the offset scale (if
-        offset_scale="deviation") from (training) scenes (B, T, N, 2), (B, T, N).
+        """Set the input means/stds (if `standardise`), the output head's scales
+        (`AgentFrameHead.fit_scales`) and the highway's maps from (training) scenes
+        (B, T, N, 2), (B, T, N).
 
         Features are those the model sees (agent frames as in `agent_frames`), over present
-        agent-steps (edges: the model's graph, both agents present). `offset_std` is the RMS
-        per axis of the agent-frame one-step deviation from constant velocity,
-        p^{t+1} - 2 p^t + p^{t-1} (zero mean by construction, so a zero output stays constant
-        velocity). `anchor_std`
-        (rollout_prior "anchored") is the RMS per axis of the agent-frame velocity change since
-        the last observed step, v^t - v^{T_obs-1}, over the predicted steps. With
-        `highway_steps` the highway's maps are fitted too (`_fit_highway`; roles (B, N) choose
-        the map where the model reads roles); fit_maps=False leaves its maps (not its edge
-        statistics) to `refit_attended`, as training does, which replaces them unread.
+        agent-steps (edges: the model's graph, both agents present). With `highway_steps` the
+        highway's maps are fitted too (`_fit_highway`; roles (B, N) choose the map where the
+        model reads roles); fit_maps=False leaves its maps (not its edge statistics) to
+        `refit_attended`, as training does, which replaces them unread.
         """
         if self.config.frame != "agent":
             raise ValueError("fit_normalisation needs frame='agent'")
@@ -100,21 +94,7 @@ class InputStatistics:
             self.input_mean.copy_(torch.cat([own.mean(0), pair_mean]))
             std = torch.cat([own.std(0), pair_std])
             self.input_std.copy_(std.clamp(min=MIN_STAT_STD))
-        if self.config.offset_scale == "deviation":
-            pos, prev = steps.pos, steps.prev_pos
-            dev = pos[1:] - 2 * pos[:-1] + prev[:-1]  # (T-1, B, N, 2)
-            before = torch.cat([present[:1] & False, present[:-2]], 0)  # (T-1, B, N) at t-1
-            ok = present[1:] & present[:-1] & before
-            local = rotate(dev, steps.frame[1], inverse=True)[ok]  # (K, 2)
-            self.offset_std.copy_(local.pow(2).mean(0).sqrt().clamp(min=MIN_STAT_STD))
-        if self.config.rollout_prior == "anchored":
-            t_obs = num_observed
-            velocity = steps.pos - steps.prev_pos  # (T, B, N, 2)
-            change = velocity[t_obs:] - velocity[t_obs - 1]  # (T_pred, B, N, 2)
-            before = present[t_obs - 2] if t_obs >= 2 else torch.zeros_like(present[0])
-            ok = present[t_obs:] & present[t_obs - 1 : -1] & present[t_obs - 1] & before
-            local = rotate(change, steps.frame[1], inverse=True)[ok]  # (K, 2)
-            self.anchor_std.copy_(local.pow(2).mean(0).sqrt().clamp(min=MIN_STAT_STD))
+        self.head.fit_scales(steps)  # the output's units (predictor.model.head)
         if self.config.highway_steps:
             self._fit_highway(steps, roles, fit_maps)
 
@@ -125,8 +105,6 @@ class InputStatistics:
         scales += [cfg.interaction_scale_m] * 2 + [cfg.step_scale_m] * 2
         with torch.no_grad():
             self.input_std.copy_(torch.tensor(scales))
-            self.offset_std.fill_(cfg.step_scale_m)
-            self.anchor_std.fill_(cfg.step_scale_m)
 
     def _edge_inputs(self, rel: Tensor, graph: Graph) -> Tensor:
         """x_ij = F_interact(concat(s_i, s_j - s_i)) of the graph's edges: (S, B, N, 2) ->

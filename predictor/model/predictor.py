@@ -62,17 +62,15 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from predictor.agent_frame import (
-    rotate,
-    rotate_tril,
-)
 from predictor.config import ModelConfig
 from predictor.graph import Graph, neighbour_graph
 from predictor.model.attention import GraphAttention, Presence
+from predictor.model.head import build_head
 from predictor.model.highway_maps import HighwayMaps
 from predictor.model.input_statistics import InputStatistics
 from predictor.model.pass_inputs import PassInputs as _Steps
 from predictor.model.pass_inputs import prepare_pass
+from predictor.model.state_names import use_checkpoint_names
 from predictor.outputs import (
     Gaussian2D,
     ModelOutput,
@@ -81,7 +79,7 @@ from predictor.outputs import (
     StepOutputs,
 )
 
-MAX_LOG_GAIN = 12.0  # cap of log(std excess / initial excess): stds stay finite
+PARTS = ("head",)  # the model's parts (nn.Module children), named in checkpoints without them
 
 
 def run_lstm(
@@ -124,31 +122,18 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
         if config.role_attention_bias and learned and config.num_roles > 0:
             self.role_pair = nn.Parameter(torch.zeros(config.num_roles, config.num_roles))
         self.g_pred = nn.LSTM(emb + 2 * hid, config.node_hidden)
-        if config.detach_covariance:  # separate heads: offset (2), Cholesky raw (3)
-            self.f_pred = nn.Linear(config.node_hidden, 2)
-            self.f_cov = nn.Linear(config.node_hidden, 3)
-        else:
-            self.f_pred = nn.Linear(config.node_hidden, 5)  # offset (2), Cholesky raw (3)
-            self.f_cov = None
-        anchored = config.rollout_prior == "anchored"
-        self.f_roll = nn.Linear(config.node_hidden, 2) if anchored else None  # velocity change
-        with torch.no_grad():  # start exactly at the mean prior, stds init_std_m, no correlation
-            for layer in (self.f_pred, self.f_cov, self.f_roll):
-                if layer is not None:
-                    layer.weight.zero_()
-                    layer.bias.zero_()
+        self.head = build_head(config)  # starts at the mean prior, stds init_std_m
+        use_checkpoint_names(self, PARTS)
 
     def parameter_groups(self) -> list[list[nn.Parameter]]:
         """Parameters whose gradients come from separate losses (with `detach_covariance`: the
         covariance head, trained by the likelihood alone, and the rest), for per-group gradient
         clipping; one group otherwise."""
-        if self.f_cov is None:
+        covariance = self.head.covariance_parameters()
+        if not covariance:
             return [list(self.parameters())]
-        head = {id(p) for p in self.f_cov.parameters()}
-        return [
-            [p for p in self.parameters() if id(p) not in head],
-            list(self.f_cov.parameters()),
-        ]
+        head = {id(p) for p in covariance}
+        return [[p for p in self.parameters() if id(p) not in head], covariance]
 
     # ----------------------------------------------------------------------------- public API
     def forward(
@@ -270,18 +255,17 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
         state, prev = observed.state, steps.pos[t_obs - 1]  # prev: (B, N, 2)
         presence = self._presence(present[None], steps)  # the same at every rollout step
         anchor = None  # velocity at the last observed step (rollout_prior "anchored")
-        if self.config.rollout_prior == "anchored":
+        if self.head.anchored:
             anchor = steps.pos[t_obs - 1] - steps.prev_pos[t_obs - 1]  # (B, N, 2)
             # the first predicted step too: F_roll on the node output of step T_obs-1 (the
             # LSTM's last h), so the rollout loss trains every step of the rollout's means
             o_last = state.node[0][0].view(*present.shape, -1)  # (B, N, Hn)
-            raw = self._raw_outputs(o_last, anchored=True)  # (B, N, 5)
             # (B, N, horizon, 2) world axes, or None
             changes = self._highway(steps, observed.attention[-1])
             if changes is not None:
                 anchor = anchor.unsqueeze(2) + changes  # (B, N, horizon, 2) per predicted step
             first = anchor if changes is None else anchor[:, :, 0]
-            gaussian = self._agent_gaussian(raw, prev + first, steps.frame[1], self.anchor_std)
+            gaussian = self.head.anchored_step(o_last, prev + first, steps.frame[1])
         gaussians, attentions = [gaussian], [observed.attention[-1]]
         for t in range(t_obs, num_steps - 1):
             step_anchor = anchor
@@ -360,49 +344,10 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
         o_self = o_self.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
         node_in = torch.cat([self.f_embed(own), attended, o_self], -1)  # (S, B, N, E+2H)
         o_node, h_node = run_lstm(self.g_pred, node_in.flatten(1, 2), state.node)  # (S, B*N, Hn)
-        raw = self._raw_outputs(o_node, anchor is not None)
-        raw = raw.view(num_steps, batch, num_agents, 5)  # (S, B, N, 5)
-        if anchor is not None:
-            gaussian = self._agent_gaussian(raw, pos + anchor, steps.frame[1], self.anchor_std)
-        elif steps.frame is None:
-            base = pos + (pos - prev_pos) if cfg.mean_prior == "velocity" else pos  # (S, B, N, 2)
-            gaussian = self._gaussian(raw, base)
+        rotation = None if steps.frame is None else steps.frame[1]
+        if anchor is None:
+            gaussian = self.head(o_node, pos, prev_pos, rotation)  # (S, B, N, .)
         else:
-            base = pos + (pos - prev_pos) if cfg.mean_prior == "velocity" else pos  # (S, B, N, 2)
-            gaussian = self._agent_gaussian(raw, base, steps.frame[1])
+            gaussian = self.head.anchored_step(o_node, pos + anchor, rotation)
         attention = graph.to_compact(theta)  # (S, B, N, N-1), zero off the graph
         return StepOutputs(gaussian, attention, RecurrentState(h_edge, h_self, h_node))
-
-    def _raw_outputs(self, o_node: Tensor, anchored: bool = False) -> Tensor:
-        """F_pred(o_node) (..., 5): mean offset (2) and Cholesky raw values (3); with
-        `detach_covariance` the last three see the features through a stop-gradient; with
-        `anchored` the mean offset comes from F_roll (anchored rollout steps)."""
-        raw = self.f_pred(o_node)
-        cov = raw[..., 2:] if self.f_cov is None else self.f_cov(o_node.detach())
-        offset = self.f_roll(o_node) if anchored else raw[..., :2]
-        return torch.cat([offset, cov], -1)
-
-    def _agent_gaussian(
-        self, raw: Tensor, base: Tensor, rotation: Tensor, scale: Tensor | None = None
-    ) -> Gaussian2D:
-        """Next-position Gaussian with offset and Cholesky factor in the agent frame, rotated to
-        world axes; the offset unit is `scale` if given, else `offset_std` ("deviation") or
-        step_scale_m ("step")."""
-        cfg = self.config
-        if scale is None:
-            scale = self.offset_std if cfg.offset_scale == "deviation" else cfg.step_scale_m
-        offset = rotate(raw[..., :2] * scale, rotation)  # (..., 2)
-        return Gaussian2D(base + offset, rotate_tril(self._tril(raw), rotation))
-
-    def _gaussian(self, raw: Tensor, base: Tensor) -> Gaussian2D:
-        """Next-position Gaussian from the F_pred output (..., 5) and the base of the mean [m]."""
-        mean = base + raw[..., :2] * self.config.step_scale_m  # (..., 2)
-        return Gaussian2D(mean, self._tril(raw))
-
-    def _tril(self, raw: Tensor) -> Tensor:
-        """Cholesky entries (l11, l21, l22) (..., 3) from the F_pred output's last three."""
-        cfg = self.config
-        log_gain = (cfg.log_std_gain * raw[..., 2:4]).clamp(max=MAX_LOG_GAIN)  # (..., 2)
-        diag = cfg.min_std_m + (cfg.init_std_m - cfg.min_std_m) * torch.exp(log_gain)  # (..., 2)
-        off = raw[..., 4:5] * diag[..., 1:]  # (..., 1) l21 = c * l22: correlation c / sqrt(1+c^2)
-        return torch.cat([diag[..., :1], off, diag[..., 1:]], -1)  # (..., 3)
