@@ -99,7 +99,7 @@ class DensePredictor(SmoothAttentionPredictor):
             role = steps.roles.unsqueeze(0).expand(num_steps, -1, -1, -1)  # (S, B, N, R)
             own = torch.cat([rel, role], -1)
             step = torch.cat([step, role], -1)
-        x_self = self.f_self(torch.cat([own[..., :2], step], -1))  # (S, B, N, E)
+        x_self = self.encoder.f_self(torch.cat([own[..., :2], step], -1))  # (S, B, N, E)
         state = state or RecurrentState(None, None, None)
         o_edge, h_edge = self.g_interact(x_edge.flatten(1, 3), state.edge)  # (S, B*M, H)
         o_self, h_self = self.g_self(x_self.flatten(1, 2), state.self_loop)  # (S, B*N, H)
@@ -108,7 +108,7 @@ class DensePredictor(SmoothAttentionPredictor):
         o_self = o_self.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
         theta = self._attention(o_self, o_edge, present, labels, head)  # (S, B, N, N-1)
         attended = (theta.unsqueeze(-1) * o_edge).sum(-2)  # (S, B, N, H)
-        node_in = torch.cat([self.f_embed(own), attended, o_self], -1)  # (S, B, N, E+2H)
+        node_in = torch.cat([self.encoder.f_embed(own), attended, o_self], -1)  # (S, B, N, E+2H)
         o_node, h_node = self.g_pred(node_in.flatten(1, 2), state.node)  # (S, B*N, Hn)
         head = self.head  # the packed model's output head (predictor.model.head), unchanged
         raw = head.raw_outputs(o_node, anchor is not None)
@@ -127,25 +127,26 @@ class DensePredictor(SmoothAttentionPredictor):
         self, pos: Tensor, prev_pos: Tensor, present: Tensor, frame: AgentFrame, head: Tensor
     ) -> tuple[Tensor, Tensor, Tensor]:
         own, pair = agent_features(pos, prev_pos, present, frame, head)
-        own = (own - self.input_mean[:4]) / self.input_std[:4]  # (S, B, N, 4)
-        pair = (pair - self.input_mean[4:]) / self.input_std[4:]  # (S, B, N, N-1, 4)
+        mean, std = self.encoder.input_mean, self.encoder.input_std  # the packed model's
+        own = (own - mean[:4]) / std[:4]  # (S, B, N, 4)
+        pair = (pair - mean[4:]) / std[4:]  # (S, B, N, N-1, 4)
         own = torch.where(present.unsqueeze(-1), own, 0.0)
         both = edge_present(present, head)  # (S, B, N, N-1)
         pair = torch.where(both.unsqueeze(-1), pair, 0.0)
         width = 4 if self.config.edge_velocity else 2
         own_per_edge = own[..., :2].unsqueeze(3).expand(*pair.shape[:-1], 2)
-        x_edge = self.f_interact(torch.cat([own_per_edge, pair[..., :width]], -1))
+        x_edge = self.encoder.f_interact(torch.cat([own_per_edge, pair[..., :width]], -1))
         return own[..., :2], own[..., 2:], x_edge
 
     def _edge_inputs(self, rel: Tensor, head: Tensor) -> Tensor:
-        linear = self.f_interact[0]
+        linear = self.encoder.f_interact[0]
         gain = self.config.position_scale_m / self.config.interaction_scale_m
         w_tail, w_rel = linear.weight[:, :2], linear.weight[:, 2:] * gain  # (E, 2), (E, 2)
         per_tail = F.linear(rel, w_tail - w_rel, linear.bias)  # (S, B, N, E)
         per_head = F.linear(rel, w_rel)  # (S, B, N, E)
         shape = (*rel.shape[:2], rel.shape[2], rel.shape[2] - 1, per_head.shape[-1])
         heads = per_head.index_select(2, head).view(shape)  # (S, B, N, N-1, E)
-        return self.f_interact[1](per_tail.unsqueeze(-2) + heads)  # (S, B, N, N-1, E)
+        return self.encoder.f_interact[1](per_tail.unsqueeze(-2) + heads)  # (S, B, N, N-1, E)
 
     def _attention(
         self, o_self: Tensor, o_edge: Tensor, present: Tensor, labels: Tensor | None, head: Tensor

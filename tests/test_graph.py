@@ -335,8 +335,8 @@ def test_standardisation_statistics_equal_the_dense_ones():
     packed, _ = model_pair("learned", "agent")
     packed.fit_normalisation(positions, valid, 5, roles)
     mean, std = dense_input_stats(packed, positions, valid, 5)
-    torch.testing.assert_close(packed.input_mean, mean)
-    torch.testing.assert_close(packed.input_std, std)
+    torch.testing.assert_close(packed.encoder.input_mean, mean)
+    torch.testing.assert_close(packed.encoder.input_std, std)
 
 
 # --------------------------------------------------------------------------- sparse graphs

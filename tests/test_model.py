@@ -200,11 +200,11 @@ def test_split_edge_layer_equals_the_concatenated_input():
     rel = torch.randn(3, 2, 5, 2)  # (S, B, N, 2) positions at position_scale
     tail, head = edge_index(5)
     gain = 50.0 / 5.0  # offsets between agents are read at interaction_scale
-    direct = model.f_interact(
+    direct = model.encoder.f_interact(
         torch.cat([rel[:, :, tail], (rel[:, :, head] - rel[:, :, tail]) * gain], -1)
     )  # (S, B, M, E)
     graph = neighbour_graph(rel.transpose(0, 1), torch.ones(2, 3, 5, dtype=torch.bool), 3)
-    packed = model._edge_inputs(rel, graph)  # (S, B*M, E): the complete graph, scene-major
+    packed = model.encoder.edge_inputs(rel, graph)  # (S, B*M, E): the complete graph, scene-major
     torch.testing.assert_close(packed, direct.flatten(1, 2))
 
 

@@ -65,9 +65,9 @@ from torch import Tensor, nn
 from predictor.config import ModelConfig
 from predictor.graph import Graph, neighbour_graph
 from predictor.model.attention import GraphAttention, Presence
+from predictor.model.encoders import build_encoder
 from predictor.model.head import build_head
 from predictor.model.highway_maps import HighwayMaps
-from predictor.model.input_statistics import InputStatistics
 from predictor.model.pass_inputs import PassInputs as _Steps
 from predictor.model.pass_inputs import prepare_pass
 from predictor.model.state_names import use_checkpoint_names
@@ -79,7 +79,8 @@ from predictor.outputs import (
     StepOutputs,
 )
 
-PARTS = ("head",)  # the model's parts (nn.Module children), named in checkpoints without them
+# the model's parts (nn.Module children), whose tensors checkpoints name without the part
+PARTS = ("encoder", "head")
 
 
 def run_lstm(
@@ -97,7 +98,7 @@ def run_lstm(
     return output, (h, c)
 
 
-class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.Module):
+class SmoothAttentionPredictor(GraphAttention, HighwayMaps, nn.Module):
     """Graph-RNN trajectory predictor with (learned, uniform or oracle) attention."""
 
     def __init__(self, config: ModelConfig) -> None:
@@ -106,13 +107,7 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
             raise ValueError("num_roles=-1 (from the data) must be resolved first (resolve_roles)")
         self.config = config
         emb, hid = config.embed_dim, config.edge_hidden
-        # one-hot role inputs of F_embed and F_self
-        roles = max(config.num_roles, 0) if config.role_input else 0
-        self.f_embed = nn.Sequential(nn.Linear(2 + roles, emb), nn.ReLU())
-        self.f_self = nn.Sequential(nn.Linear(4 + roles, emb), nn.ReLU())
-        edge_in = 6 if config.edge_velocity else 4
-        self.f_interact = nn.Sequential(nn.Linear(edge_in, emb), nn.ReLU())
-        self._register_statistics()  # input normalisation (predictor.input_statistics)
+        self.encoder = build_encoder(config)  # F_embed, F_self, F_interact
         self._register_maps()  # the highway's maps (predictor.highway_maps)
         self.g_self = nn.LSTM(emb, hid)
         self.g_interact = nn.LSTM(emb, hid)
@@ -190,6 +185,32 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
             one_step=observed.gaussian.time_first(), attention=observed.attention.transpose(0, 1)
         )
         return out.with_rollout(self._rollout(steps, observed, sample=False))
+
+    @torch.no_grad()
+    def fit_normalisation(
+        self,
+        positions: Tensor,
+        valid: Tensor,
+        num_observed: int,
+        roles: Tensor | None = None,
+        fit_maps: bool = True,
+    ) -> None:
+        """Fit the agent frame's statistics on (training) scenes (B, T, N, 2), (B, T, N): the
+        input encoder's standardisation (`AgentFrameEncoder.fit_statistics`), the output
+        head's scales (`AgentFrameHead.fit_scales`) and, with `highway_steps`, the highway's
+        maps (`_fit_highway`; roles (B, N) choose the map where the model reads roles);
+        fit_maps=False leaves its maps (not its edge statistics) to `refit_attended`, as
+        training does, which replaces them unread.
+        """
+        if not self.encoder.has_statistics:
+            raise ValueError("fit_normalisation needs frame='agent'")
+        no_labels = torch.full(valid.shape, -1, dtype=torch.long)  # labels play no part here
+        no_roles = torch.zeros(valid.shape[0], valid.shape[2], dtype=torch.long)  # nor roles
+        steps = self._prepare(positions, valid, num_observed, no_labels, no_roles)
+        self.encoder.fit_statistics(steps)
+        self.head.fit_scales(steps)
+        if self.config.highway_steps:
+            self._fit_highway(steps, roles, fit_maps)
 
     # ----------------------------------------------------------------------------- internals
     def _prepare(
@@ -315,26 +336,12 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
         edges' presence terms of `present` (`_presence`), if already computed.
         """
         num_steps, batch, num_agents, _ = pos.shape
-        cfg = self.config
         graph = steps.graph
-        mask = present.unsqueeze(-1)  # (S, B, N, 1)
-        if steps.frame is None:
-            rel = (pos - steps.origin[None, :, None]) / cfg.position_scale_m  # (S, B, N, 2)
-            rel = torch.where(mask, rel, torch.zeros_like(rel))  # (S, B, N, 2)
-            step = torch.where(mask, (pos - prev_pos) / cfg.step_scale_m, torch.zeros_like(pos))
-            x_edge = self._edge_inputs(rel, graph)  # (S, E, emb)
-        else:
-            rel, step, x_edge = self._agent_inputs(pos, prev_pos, present, steps.frame, graph)
-        own = rel
-        if steps.roles is not None:  # one-hot roles (B, N, R) at every step
-            role = steps.roles.unsqueeze(0).expand(num_steps, -1, -1, -1)  # (S, B, N, R)
-            own = torch.cat([rel, role], -1)
-            step = torch.cat([step, role], -1)
-        x_self = self.f_self(torch.cat([own[..., :2], step], -1))  # (S, B, N, E)
+        inputs = self.encoder(pos, prev_pos, present, steps)
         state = state or RecurrentState(None, None, None)
         # (S, E, H) over the packed edges, (S, B*N, H) over the agents
-        o_edge, h_edge = run_lstm(self.g_interact, x_edge, state.edge)
-        o_self, h_self = run_lstm(self.g_self, x_self.flatten(1, 2), state.self_loop)
+        o_edge, h_edge = run_lstm(self.g_interact, inputs.edge, state.edge)
+        o_self, h_self = run_lstm(self.g_self, inputs.self_loop.flatten(1, 2), state.self_loop)
         presence = presence or self._presence(present, steps)
         theta = self._attention(
             o_self, o_edge, presence, labels, graph, self._pair_bias(steps)
@@ -342,7 +349,7 @@ class SmoothAttentionPredictor(GraphAttention, InputStatistics, HighwayMaps, nn.
         attended = graph.sum_by_tail(theta.unsqueeze(-1) * o_edge)  # (S, B*N, H)
         attended = attended.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
         o_self = o_self.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
-        node_in = torch.cat([self.f_embed(own), attended, o_self], -1)  # (S, B, N, E+2H)
+        node_in = torch.cat([inputs.node, attended, o_self], -1)  # (S, B, N, E+2H)
         o_node, h_node = run_lstm(self.g_pred, node_in.flatten(1, 2), state.node)  # (S, B*N, Hn)
         rotation = None if steps.frame is None else steps.frame[1]
         if anchor is None:
