@@ -321,8 +321,8 @@ def test_the_dense_path_gives_the_packed_paths_losses_and_gradients(preset, monk
         def graph(*args, complete=complete):
             return dataclasses.replace(neighbour_graph(*args), complete=complete)
 
-        monkeypatch.setattr("predictor.model.predictor.neighbour_graph", graph)
-        assert model._graph(positions, valid, 5).complete is complete
+        monkeypatch.setattr("predictor.model.pass_inputs.neighbour_graph", graph)
+        assert model._prepare(positions, valid, 5, labels, roles).graph.complete is complete
         runs.append(loss_and_grads(model, positions, valid, labels, roles, focal))
     (out_d, terms_d, grads_d), (out_p, terms_p, grads_p) = runs
     torch.testing.assert_close(out_d.rollout.mean, out_p.rollout.mean)

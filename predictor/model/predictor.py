@@ -63,7 +63,6 @@ import torch
 from torch import Tensor, nn
 
 from predictor.config import ModelConfig
-from predictor.graph import Graph, neighbour_graph
 from predictor.model.attention import GraphAttention, Presence
 from predictor.model.encoders import build_encoder
 from predictor.model.head import build_head
@@ -222,18 +221,8 @@ class SmoothAttentionPredictor(GraphAttention, HighwayMaps, nn.Module):
         roles: Tensor | None = None,
         graph_steps: int | None = None,
     ) -> _Steps:
-        """Time-first inputs of a pass (`prepare_pass`), and the pass's neighbour graph, chosen
-        from the first `graph_steps` steps (None: all; `predict` reads only the observed ones)."""
-        steps = prepare_pass(self.config, positions, valid, num_observed, labels, roles)
-        steps.graph = self._graph(positions[:, :graph_steps], valid[:, :graph_steps], num_observed)
-        return steps
-
-    def _graph(self, positions: Tensor, valid: Tensor, num_observed: int) -> Graph:
-        """The neighbour graph of the configured kind (predictor.graph) over (B, T', N) steps."""
-        cfg = self.config
-        return neighbour_graph(
-            positions, valid, num_observed, cfg.neighbours, cfg.neighbour_radius_m, cfg.neighbour_k
-        )
+        """The time-first inputs of a pass with its neighbour graph (`prepare_pass`)."""
+        return prepare_pass(self.config, positions, valid, num_observed, labels, roles, graph_steps)
 
     def _block(
         self, steps: _Steps, start: int, stop: int, state: RecurrentState | None
