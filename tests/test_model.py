@@ -7,7 +7,6 @@ import torch
 from torch import nn
 
 from predictor.config import ModelConfig
-from predictor.graph import neighbour_graph
 from predictor.losses import attention_tv
 from predictor.model import SmoothAttentionPredictor, run_lstm
 from predictor.outputs import Gaussian2D, edge_index, expand_attention
@@ -193,19 +192,6 @@ def test_untrained_model_predicts_the_mean_prior_with_the_initial_std():
         torch.testing.assert_close(
             out.one_step.tril, torch.tensor([0.3, 0.0, 0.3]).expand_as(out.one_step.tril)
         )
-
-
-def test_split_edge_layer_equals_the_concatenated_input():
-    model = make_model(position_scale_m=50.0, interaction_scale_m=5.0)
-    rel = torch.randn(3, 2, 5, 2)  # (S, B, N, 2) positions at position_scale
-    tail, head = edge_index(5)
-    gain = 50.0 / 5.0  # offsets between agents are read at interaction_scale
-    direct = model.encoder.f_interact(
-        torch.cat([rel[:, :, tail], (rel[:, :, head] - rel[:, :, tail]) * gain], -1)
-    )  # (S, B, M, E)
-    graph = neighbour_graph(rel.transpose(0, 1), torch.ones(2, 3, 5, dtype=torch.bool), 3)
-    packed = model.encoder.edge_inputs(rel, graph)  # (S, B*M, E): the complete graph, scene-major
-    torch.testing.assert_close(packed, direct.flatten(1, 2))
 
 
 def test_attention_gain_multiplies_the_scores_before_the_softmax():
