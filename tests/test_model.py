@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import pytest
 import torch
-from torch import nn
 
 from predictor.config import ModelConfig
 from predictor.losses import attention_tv
-from predictor.model import SmoothAttentionPredictor, run_lstm
+from predictor.model import SmoothAttentionPredictor
 from predictor.outputs import Gaussian2D, edge_index, expand_attention
 from predictor.presets import make_configs
 
@@ -221,29 +220,6 @@ def test_a_scene_of_one_agent_predicts_as_if_the_others_were_absent():
     assert alone.attention.shape == (2, 4, 1, 0)
     torch.testing.assert_close(alone.rollout.mean, paired.rollout.mean[:, :, :1])
     torch.testing.assert_close(alone.one_step.mean, paired.one_step.mean[:, :, :1])
-
-
-@pytest.mark.parametrize("with_state", [False, True])
-def test_run_lstm_is_nn_lstm_outputs_and_gradients(with_state: bool):
-    # the model calls torch.lstm directly: outputs, final states and every gradient (inputs,
-    # initial state, the four weights) must be nn.LSTM's own
-    torch.manual_seed(0)
-    lstm = nn.LSTM(5, 4).double()
-    x = torch.randn(3, 7, 5, dtype=torch.float64, requires_grad=True)
-    state = None
-    if with_state:
-        h0 = torch.randn(1, 7, 4, dtype=torch.float64, requires_grad=True)
-        c0 = torch.randn(1, 7, 4, dtype=torch.float64, requires_grad=True)
-        state = (h0, c0)
-    leaves = [x, *lstm.parameters(), *(state or ())]
-    results = []
-    for call in (lstm, lambda inputs, hx: run_lstm(lstm, inputs, hx)):
-        out, (h, c) = call(x, state)
-        loss = (out * torch.linspace(-1, 1, 4, dtype=torch.float64)).sum() + h.sum() + 2 * c.sum()
-        results.append((out, h, c, torch.autograd.grad(loss, leaves)))
-    (out_a, h_a, c_a, grads_a), (out_b, h_b, c_b, grads_b) = results
-    for a, b in [(out_a, out_b), (h_a, h_b), (c_a, c_b), *zip(grads_a, grads_b, strict=True)]:
-        torch.testing.assert_close(a, b, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("num_observed", [0, 9])

@@ -69,6 +69,7 @@ from predictor.model.head import build_head
 from predictor.model.highway_maps import HighwayMaps
 from predictor.model.pass_inputs import PassInputs as _Steps
 from predictor.model.pass_inputs import prepare_pass
+from predictor.model.recurrent import EdgeRecurrence, NodeRecurrence
 from predictor.model.state_names import use_checkpoint_names
 from predictor.outputs import (
     Gaussian2D,
@@ -79,22 +80,7 @@ from predictor.outputs import (
 )
 
 # the model's parts (nn.Module children), whose tensors checkpoints name without the part
-PARTS = ("encoder", "head")
-
-
-def run_lstm(
-    lstm: nn.LSTM, inputs: Tensor, state: tuple[Tensor, Tensor] | None
-) -> tuple[Tensor, tuple[Tensor, Tensor]]:
-    """`lstm(inputs, state)` for the model's one-layer, unidirectional, time-first LSTMs
-    without nn.LSTM.forward's Python-level checks: the same op (`torch.lstm`) on the same
-    weights, so the same outputs and gradients. The rollout calls its three LSTMs once per
-    step (156 calls a training step), where those checks cost ~4 % of the step."""
-    if state is None:  # nn.LSTM's zero initial state
-        zeros = inputs.new_zeros(1, inputs.shape[1], lstm.hidden_size)
-        state = (zeros, zeros)
-    weights = [lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0]
-    output, h, c = torch.lstm(inputs, state, weights, True, 1, 0.0, lstm.training, False, False)
-    return output, (h, c)
+PARTS = ("encoder", "recurrent", "node", "head")
 
 
 class SmoothAttentionPredictor(GraphAttention, HighwayMaps, nn.Module):
@@ -105,17 +91,16 @@ class SmoothAttentionPredictor(GraphAttention, HighwayMaps, nn.Module):
         if config.num_roles < 0:
             raise ValueError("num_roles=-1 (from the data) must be resolved first (resolve_roles)")
         self.config = config
-        emb, hid = config.embed_dim, config.edge_hidden
+        hid = config.edge_hidden
         self.encoder = build_encoder(config)  # F_embed, F_self, F_interact
         self._register_maps()  # the highway's maps (predictor.highway_maps)
-        self.g_self = nn.LSTM(emb, hid)
-        self.g_interact = nn.LSTM(emb, hid)
+        self.recurrent = EdgeRecurrence(config)  # G_self, G_interact
         learned = config.attention_mode == "learned"
         self.f_attn = nn.Linear(hid, config.attn_dim) if learned else None
         self.role_pair = None
         if config.role_attention_bias and learned and config.num_roles > 0:
             self.role_pair = nn.Parameter(torch.zeros(config.num_roles, config.num_roles))
-        self.g_pred = nn.LSTM(emb + 2 * hid, config.node_hidden)
+        self.node = NodeRecurrence(config)  # G_pred
         self.head = build_head(config)  # starts at the mean prior, stds init_std_m
         use_checkpoint_names(self, PARTS)
 
@@ -328,9 +313,8 @@ class SmoothAttentionPredictor(GraphAttention, HighwayMaps, nn.Module):
         graph = steps.graph
         inputs = self.encoder(pos, prev_pos, present, steps)
         state = state or RecurrentState(None, None, None)
-        # (S, E, H) over the packed edges, (S, B*N, H) over the agents
-        o_edge, h_edge = run_lstm(self.g_interact, inputs.edge, state.edge)
-        o_self, h_self = run_lstm(self.g_self, inputs.self_loop.flatten(1, 2), state.self_loop)
+        edges = self.recurrent(inputs.self_loop, inputs.edge, state.self_loop, state.edge)
+        o_edge, o_self = edges.edge, edges.self_loop  # (S, E, H), (S, B*N, H)
         presence = presence or self._presence(present, steps)
         theta = self._attention(
             o_self, o_edge, presence, labels, graph, self._pair_bias(steps)
@@ -338,12 +322,13 @@ class SmoothAttentionPredictor(GraphAttention, HighwayMaps, nn.Module):
         attended = graph.sum_by_tail(theta.unsqueeze(-1) * o_edge)  # (S, B*N, H)
         attended = attended.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
         o_self = o_self.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
-        node_in = torch.cat([inputs.node, attended, o_self], -1)  # (S, B, N, E+2H)
-        o_node, h_node = run_lstm(self.g_pred, node_in.flatten(1, 2), state.node)  # (S, B*N, Hn)
+        o_node, h_node = self.node(inputs.node, attended, o_self, state.node)  # (S, B*N, Hn)
         rotation = None if steps.frame is None else steps.frame[1]
         if anchor is None:
             gaussian = self.head(o_node, pos, prev_pos, rotation)  # (S, B, N, .)
         else:
             gaussian = self.head.anchored_step(o_node, pos + anchor, rotation)
         attention = graph.to_compact(theta)  # (S, B, N, N-1), zero off the graph
-        return StepOutputs(gaussian, attention, RecurrentState(h_edge, h_self, h_node))
+        return StepOutputs(
+            gaussian, attention, RecurrentState(edges.edge_state, edges.self_state, h_node)
+        )
