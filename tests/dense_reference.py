@@ -157,7 +157,8 @@ class DensePredictor(SmoothAttentionPredictor):
         mask = others & present.unsqueeze(-1)  # (S, B, N, N-1) tail i present too
         mode = self.config.attention_mode
         if mode == "learned":
-            query = self.f_attn(o_self) @ self.f_attn.weight  # (S, B, N, H)
+            f_attn = self.attention.f_attn
+            query = f_attn(o_self) @ f_attn.weight  # (S, B, N, H)
             scores = (o_edge * query.unsqueeze(-2)).sum(-1) * self.config.attention_gain
             return masked_softmax(scores, mask)
         uniform = masked_softmax(torch.zeros(shape, device=o_edge.device), mask)  # (S,B,N,N-1)

@@ -142,7 +142,7 @@ def test_refit_reads_the_current_attention_and_cross_fits_the_training_scenes():
     model.refit_attended(train, valid, num_observed)
     first = model.attended_weight.clone()
     with torch.no_grad():  # another attention, another fit of the same scenes
-        model.f_attn.weight.mul_(5.0)
+        model.attention.f_attn.weight.mul_(5.0)
     model.refit_attended(train, valid, num_observed)
     assert (model.attended_weight - first).abs().max() > 1e-4
     # training scenes roll out with the maps fitted without their fold, as the plain highway
@@ -375,7 +375,7 @@ def test_head_groups_keep_the_other_kinds_edges_out_of_a_map():
             torch.manual_seed(0)
             model = SmoothAttentionPredictor(ModelConfig(**common, highway_head_groups=head_groups))
             with torch.no_grad():  # learned attention with zero scores: equal shares
-                model.f_attn.weight.zero_()
+                model.attention.f_attn.weight.zero_()
             model.fit_normalisation(data, valid, num_observed, roles)
             model.refit_attended(data, valid, num_observed, None, roles)
             steps_in = model._prepare(test, test_valid, num_observed, test_labels, test_roles)

@@ -312,9 +312,10 @@ def test_the_dense_path_gives_the_packed_paths_losses_and_gradients(preset, monk
     live_heads(model)
     if model.config.frame == "agent":
         model.fit_normalisation(positions, valid, 5, roles)
-    if model.role_pair is not None:
+    if model.role_bias is not None:
+        role_pair = model.role_bias.role_pair
         with torch.no_grad():
-            model.role_pair.copy_(torch.linspace(-1, 1, model.role_pair.numel()).view(3, 3))
+            role_pair.copy_(torch.linspace(-1, 1, role_pair.numel()).view(3, 3))
     runs = []
     for complete in (True, False):
 

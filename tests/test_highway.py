@@ -376,7 +376,7 @@ def test_attended_highway_starts_as_the_plain_highway_and_reads_the_attention():
     )
     torch.testing.assert_close(shift, world, atol=1e-5, rtol=1e-4)
     with torch.no_grad():  # another attention, another shift
-        model.f_attn.weight.mul_(3.0)
+        model.attention.f_attn.weight.mul_(3.0)
     other, other_theta = first_step_shift()
     assert (other_theta - theta).abs().max() > 1e-3
     assert (other - shift).abs().max() > 1e-4

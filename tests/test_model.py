@@ -151,7 +151,7 @@ def test_smoothness_gradient_reaches_the_attention_module():
         out.rollout_present.unsqueeze(1).expand(-1, out.rollout_attention.shape[1], -1),
     )
     (total / count + roll_total).backward()
-    grad = model.f_attn.weight.grad
+    grad = model.attention.f_attn.weight.grad
     assert grad is not None and torch.isfinite(grad).all() and grad.abs().sum() > 0
 
 

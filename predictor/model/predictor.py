@@ -63,7 +63,7 @@ import torch
 from torch import Tensor, nn
 
 from predictor.config import ModelConfig
-from predictor.model.attention import GraphAttention, Presence
+from predictor.model.attention import Presence, build_attention, build_role_bias
 from predictor.model.encoders import build_encoder
 from predictor.model.head import build_head
 from predictor.model.highway_maps import HighwayMaps
@@ -80,10 +80,10 @@ from predictor.outputs import (
 )
 
 # the model's parts (nn.Module children), whose tensors checkpoints name without the part
-PARTS = ("encoder", "recurrent", "node", "head")
+PARTS = ("role_bias", "encoder", "recurrent", "attention", "node", "head")
 
 
-class SmoothAttentionPredictor(GraphAttention, HighwayMaps, nn.Module):
+class SmoothAttentionPredictor(HighwayMaps, nn.Module):
     """Graph-RNN trajectory predictor with (learned, uniform or oracle) attention."""
 
     def __init__(self, config: ModelConfig) -> None:
@@ -91,15 +91,14 @@ class SmoothAttentionPredictor(GraphAttention, HighwayMaps, nn.Module):
         if config.num_roles < 0:
             raise ValueError("num_roles=-1 (from the data) must be resolved first (resolve_roles)")
         self.config = config
-        hid = config.edge_hidden
+        # the role-pair bias (zeros: no random draw) is the first part, so that its parameter
+        # comes first, as before the model was composed of parts: checkpointed optimizer
+        # states and the gradient clipping's sums follow the parameter order
+        self.role_bias = build_role_bias(config)
         self.encoder = build_encoder(config)  # F_embed, F_self, F_interact
         self._register_maps()  # the highway's maps (predictor.highway_maps)
         self.recurrent = EdgeRecurrence(config)  # G_self, G_interact
-        learned = config.attention_mode == "learned"
-        self.f_attn = nn.Linear(hid, config.attn_dim) if learned else None
-        self.role_pair = None
-        if config.role_attention_bias and learned and config.num_roles > 0:
-            self.role_pair = nn.Parameter(torch.zeros(config.num_roles, config.num_roles))
+        self.attention = build_attention(config)  # learned (F_attn), uniform or oracle
         self.node = NodeRecurrence(config)  # G_pred
         self.head = build_head(config)  # starts at the mean prior, stds init_std_m
         use_checkpoint_names(self, PARTS)
@@ -248,7 +247,7 @@ class SmoothAttentionPredictor(GraphAttention, HighwayMaps, nn.Module):
         present = steps.present[t_obs - 1]  # (B, N) agents rolled out
         gaussian = Gaussian2D(observed.gaussian.mean[-1], observed.gaussian.tril[-1])  # (B, N, .)
         state, prev = observed.state, steps.pos[t_obs - 1]  # prev: (B, N, 2)
-        presence = self._presence(present[None], steps)  # the same at every rollout step
+        presence = self.attention.presence(present[None], steps)  # the same at every step
         anchor = None  # velocity at the last observed step (rollout_prior "anchored")
         if self.head.anchored:
             anchor = steps.pos[t_obs - 1] - steps.prev_pos[t_obs - 1]  # (B, N, 2)
@@ -307,7 +306,7 @@ class SmoothAttentionPredictor(GraphAttention, HighwayMaps, nn.Module):
 
         `anchor` (B, N, 2) [m/step]: rollout steps with the anchored prior p^t + anchor and the
         offset from F_roll (rollout_prior "anchored"); None: the one-step prior. `presence`: the
-        edges' presence terms of `present` (`_presence`), if already computed.
+        edges' presence terms of `present` (`GraphAttention.presence`), if already computed.
         """
         num_steps, batch, num_agents, _ = pos.shape
         graph = steps.graph
@@ -315,11 +314,10 @@ class SmoothAttentionPredictor(GraphAttention, HighwayMaps, nn.Module):
         state = state or RecurrentState(None, None, None)
         edges = self.recurrent(inputs.self_loop, inputs.edge, state.self_loop, state.edge)
         o_edge, o_self = edges.edge, edges.self_loop  # (S, E, H), (S, B*N, H)
-        presence = presence or self._presence(present, steps)
-        theta = self._attention(
-            o_self, o_edge, presence, labels, graph, self._pair_bias(steps)
-        )  # (S, E)
-        attended = graph.sum_by_tail(theta.unsqueeze(-1) * o_edge)  # (S, B*N, H)
+        presence = presence or self.attention.presence(present, steps)
+        pair_bias = None if self.role_bias is None else self.role_bias(steps)  # (E,) or None
+        theta = self.attention(o_self, o_edge, presence, labels, graph, pair_bias)  # (S, E)
+        attended = self.attention.read(theta, o_edge, graph)  # (S, B*N, H)
         attended = attended.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
         o_self = o_self.view(num_steps, batch, num_agents, -1)  # (S, B, N, H)
         o_node, h_node = self.node(inputs.node, attended, o_self, state.node)  # (S, B*N, Hn)
