@@ -137,8 +137,9 @@ def test_without_role_input_the_network_ignores_roles_but_the_highway_reads_them
     model = SmoothAttentionPredictor(config)
     randomise(model, seed=2)
     with torch.no_grad():  # a different highway map per role, its output range left open
-        model.highway_weight.copy_(0.1 * torch.randn(model.highway_weight.shape))
-        model.highway_low.fill_(-math.inf)
-        model.highway_high.fill_(math.inf)
+        highway = model.highway
+        highway.highway_weight.copy_(0.1 * torch.randn(highway.highway_weight.shape))
+        highway.highway_low.fill_(-math.inf)
+        highway.highway_high.fill_(math.inf)
     out = [model.predict(positions, valid, 6, roles=r).rollout.mean for r in (roles, swapped)]
     assert (out[0] - out[1]).abs().max() > 1e-4  # the highway still picks its map by role

@@ -66,7 +66,7 @@ from predictor.config import ModelConfig
 from predictor.model.attention import Presence, build_attention, build_role_bias
 from predictor.model.encoders import build_encoder
 from predictor.model.head import build_head
-from predictor.model.highway_maps import HighwayMaps
+from predictor.model.highway_maps import build_highway
 from predictor.model.pass_inputs import PassInputs as _Steps
 from predictor.model.pass_inputs import prepare_pass
 from predictor.model.recurrent import EdgeRecurrence, NodeRecurrence
@@ -80,10 +80,10 @@ from predictor.outputs import (
 )
 
 # the model's parts (nn.Module children), whose tensors checkpoints name without the part
-PARTS = ("role_bias", "encoder", "recurrent", "attention", "node", "head")
+PARTS = ("highway", "role_bias", "encoder", "recurrent", "attention", "node", "head")
 
 
-class SmoothAttentionPredictor(HighwayMaps, nn.Module):
+class SmoothAttentionPredictor(nn.Module):
     """Graph-RNN trajectory predictor with (learned, uniform or oracle) attention."""
 
     def __init__(self, config: ModelConfig) -> None:
@@ -91,12 +91,14 @@ class SmoothAttentionPredictor(HighwayMaps, nn.Module):
         if config.num_roles < 0:
             raise ValueError("num_roles=-1 (from the data) must be resolved first (resolve_roles)")
         self.config = config
-        # the role-pair bias (zeros: no random draw) is the first part, so that its parameter
-        # comes first, as before the model was composed of parts: checkpointed optimizer
-        # states and the gradient clipping's sums follow the parameter order
-        self.role_bias = build_role_bias(config)
+        # The parts are made in the order of the random initialisation's draws, and the
+        # parameters come in the order of the parts: the highway (a learnt attended map) and
+        # the role-pair bias, zeros without a random draw, first, as before the model was
+        # composed of parts, whose checkpointed optimizer states and gradient-clipping sums
+        # follow that order.
+        self.highway = build_highway(config)  # own-history and attended maps, or None
+        self.role_bias = build_role_bias(config)  # or None
         self.encoder = build_encoder(config)  # F_embed, F_self, F_interact
-        self._register_maps()  # the highway's maps (predictor.highway_maps)
         self.recurrent = EdgeRecurrence(config)  # G_self, G_interact
         self.attention = build_attention(config)  # learned (F_attn), uniform or oracle
         self.node = NodeRecurrence(config)  # G_pred
@@ -181,7 +183,7 @@ class SmoothAttentionPredictor(HighwayMaps, nn.Module):
         """Fit the agent frame's statistics on (training) scenes (B, T, N, 2), (B, T, N): the
         input encoder's standardisation (`AgentFrameEncoder.fit_statistics`), the output
         head's scales (`AgentFrameHead.fit_scales`) and, with `highway_steps`, the highway's
-        maps (`_fit_highway`; roles (B, N) choose the map where the model reads roles);
+        maps (`Highway.fit`; roles (B, N) choose the map where the model reads roles);
         fit_maps=False leaves its maps (not its edge statistics) to `refit_attended`, as
         training does, which replaces them unread.
         """
@@ -192,8 +194,45 @@ class SmoothAttentionPredictor(HighwayMaps, nn.Module):
         steps = self._prepare(positions, valid, num_observed, no_labels, no_roles)
         self.encoder.fit_statistics(steps)
         self.head.fit_scales(steps)
-        if self.config.highway_steps:
-            self._fit_highway(steps, roles, fit_maps)
+        if self.highway is not None:
+            self.highway.fit(steps, roles, fit_maps)
+
+    @torch.no_grad()
+    def refit_attended(
+        self,
+        positions: Tensor,
+        valid: Tensor,
+        num_observed: int,
+        labels: Tensor | None = None,
+        roles: Tensor | None = None,
+        batch_size: int = 64,
+    ) -> None:
+        """Refit the highway's own and attended maps jointly in closed form
+        (`ModelConfig.attended_refit`) on the training scenes (B, T, N, .), in the order
+        `fit_normalisation` saw them (the cross-fitting folds follow the scene index), with the
+        attention the model gives now at the last observed step. labels (B, T, N) are needed
+        for oracle attention, roles (B, N) where the model reads roles."""
+        if self.highway is None or not self.highway.refits:
+            raise ValueError("refit_attended needs ModelConfig.attended_refit")
+        self.highway.require_roles(roles, "refit_attended")
+        samples: list[tuple[Tensor, ...]] = []
+        for first in range(0, positions.shape[0], batch_size):
+            sl = slice(first, first + batch_size)
+            steps = self._prepare(
+                positions[sl],
+                valid[sl],
+                num_observed,
+                None if labels is None else labels[sl],
+                None if roles is None else roles[sl],
+            )
+            theta = self._block(steps, 0, num_observed, None).attention[-1]  # (B, N, N-1)
+            samples.append(self.highway.samples(steps, theta))
+        self.highway.refit(samples, num_observed, self.head.anchor_std)
+
+    def fill_unclamped_range(self, state: dict[str, Tensor]) -> dict[str, Tensor]:
+        """A checkpoint's state dict with the highway's output range added where it lacks one
+        (`Highway.fill_unclamped_range`; unchanged without a highway)."""
+        return state if self.highway is None else self.highway.fill_unclamped_range(state)
 
     # ----------------------------------------------------------------------------- internals
     def _prepare(
@@ -254,8 +293,9 @@ class SmoothAttentionPredictor(HighwayMaps, nn.Module):
             # the first predicted step too: F_roll on the node output of step T_obs-1 (the
             # LSTM's last h), so the rollout loss trains every step of the rollout's means
             o_last = state.node[0][0].view(*present.shape, -1)  # (B, N, Hn)
-            # (B, N, horizon, 2) world axes, or None
-            changes = self._highway(steps, observed.attention[-1])
+            changes = None  # the highway's (B, N, horizon, 2) world axes, if the model has one
+            if self.highway is not None:
+                changes = self.highway(steps, observed.attention[-1], self.head.anchor_std)
             if changes is not None:
                 anchor = anchor.unsqueeze(2) + changes  # (B, N, horizon, 2) per predicted step
             first = anchor if changes is None else anchor[:, :, 0]
