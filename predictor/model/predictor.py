@@ -1,4 +1,5 @@
-"""The smooth-attention trajectory predictor (Cao et al., ICRA 2022, Sec. "Method").
+"""The smooth-attention trajectory predictor (Cao et al., ICRA 2022, Sec. "Method"), composed
+of parts.
 
 A directed graph with self-loops over the N agents of a scene (the paper's: complete):
 
@@ -7,6 +8,26 @@ A directed graph with self-loops over the N agents of a scene (the paper's: comp
 - attention:            theta_ij = softmax over present neighbours j of <F_attn(o_ii), F_attn(o_ij)>
 - node:                 o_i = G_pred(F_embed(s_i), sum_j theta_ij o_ij, o_ii)            (LSTM)
 - output:               (mu_i, Sigma_i) of the next position = F_pred(o_i)
+
+Each stage is an nn.Module part in a module of this package; the config chooses which parts are
+built and of what kind, and each part keeps the settings it reads:
+
+| part        | module            | job                                                         |
+|-------------|-------------------|-------------------------------------------------------------|
+| `encoder`   | encoders          | F_embed, F_self, F_interact on scene- or agent-frame inputs |
+|             |                   | (`frame`), with the agent frame's input statistics          |
+| `recurrent` | recurrent         | G_self and G_interact                                       |
+| `attention` | attention         | learned, uniform or oracle weights (`attention_mode`)       |
+| `role_bias` | attention         | the role-pair bias (`role_attention_bias`), or None         |
+| `node`      | recurrent         | G_pred                                                      |
+| `head`      | head              | F_pred (F_cov, F_roll): the Gaussian, scene or agent frame  |
+| `highway`   | highway_maps      | the linear highway's maps (`highway_steps`), or None; their |
+|             | (highway_refit)   | closed-form fits                                            |
+
+This module runs the passes over them: the inputs of a pass (predictor.model.pass_inputs, with
+its neighbour graph), the teacher-forced steps in chunks, and the fed-back rollout.
+Checkpoints name the parts' tensors without the part (`f_attn.weight`), as the model did when it
+was one module (predictor.model.state_names).
 
 Graph (`ModelConfig.neighbours`, `predictor.graph`): every other agent ("all", the paper's),
 those within a radius, or the k nearest, chosen once per window (each edge keeps an LSTM state
@@ -19,38 +40,15 @@ present neighbour attends to nothing (sum 0). The attention is returned in the l
 
 Time indexing: the step at time t (t = 0 .. T-2) reads the states at t (and t-1 for the
 self-loop; at t = 0, or when the agent was absent at t-1, the previous state is the current one)
-and predicts the position at t+1. Its attention is theta^t.
+and predicts the position at t+1. Its attention is theta^t. The state s_i is the 2-D position
+(the fed-back rollout only has positions).
 
-State and normalisation: the state s_i is the 2-D position (the fed-back rollout only has
-positions). Positions are taken relative to a per-scene origin, the mean position of the agents
-present at the last observed step, and divided by `position_scale_m` (100 m: a scene spans a few
-hundred metres); absent agents get zeros. The network inputs are fixed invertible linear
-recombinations of the paper's concatenations, which the first linear layer absorbs (same
-function class, better conditioned): F_interact sees (s_i, (p_j - p_i) / interaction_scale_m)
-and F_self sees (s_i^t, (p^t - p^{t-1}) / step_scale_m).
-
-Output: the mean is the current position plus a learned offset (F_pred times `step_scale_m`)
-added to a fixed prior: with `mean_prior="velocity"` (default) the prior is constant velocity,
-p^t + (p^t - p^{t-1}), so the network learns deviations from it; "position" uses p^t alone. The
-covariance is given by its Cholesky factor L = [[l11, 0], [l21, l22]] in metres with
-l_kk = min_std_m + (init_std_m - min_std_m) * exp(log_std_gain * F_pred) > 0 and
-l21 = c * l22 (correlation c / sqrt(1 + c^2)). F_pred starts at zero: the untrained model
-predicts the prior with stds init_std_m. The gain lets Adam (lr 1e-3) move the stds across the
-decades they need (1 mm for a car at constant speed, metres late in a rollout) within a
-paper-length run; without it a std moves ~0.1 % per step.
-
-Agent frame (`frame="agent"`, docs/PREDICTOR.md): each agent's inputs are expressed in its own
-frame (origin at its last observed position, x axis along its last observed displacement), the
-same for every step of the scene: own position and velocity for F_self and F_embed, relative
-position (and velocity, `edge_velocity`) of j for F_interact, standardised with statistics of the
-training split (`fit_normalisation`, kept as buffers in the checkpoint). The mean offset and the
-Cholesky factor are predicted in that frame and rotated to world axes; with
-`offset_scale="deviation"` the offset's unit is the training split's RMS one-step deviation from
-constant velocity. The model is then equivariant to rotating and translating a scene.
-`detach_covariance` gives the covariance a head of its own behind a stop-gradient. With
-`highway_steps` a linear map of each agent's observed velocities, fitted in closed form
-(`predictor.highway`), adds its velocity changes to the anchored rollout's prior, and the
-network predicts the rest.
+Rollout: from step T_obs on the model feeds back its samples (or means). With the anchored
+prior (`rollout_prior="anchored"`, the agent frame's head) every predicted step's mean is p^t
+plus the velocity at the last observed step, plus, with a highway, the velocity changes that
+its maps read from the agent's observed history (and the agents it attends to); the network
+predicts the rest. With `frame="agent"` the model is equivariant to rotating and translating a
+scene (docs/PREDICTOR.md).
 
 Everything is batched over scenes, agents and edges; the only Python loop is over the time steps
 of the fed-back rollout. Absent agents have no edges, or (present at other steps of the window)
@@ -287,24 +285,17 @@ class SmoothAttentionPredictor(nn.Module):
         gaussian = Gaussian2D(observed.gaussian.mean[-1], observed.gaussian.tril[-1])  # (B, N, .)
         state, prev = observed.state, steps.pos[t_obs - 1]  # prev: (B, N, 2)
         presence = self.attention.presence(present[None], steps)  # the same at every step
-        anchor = None  # velocity at the last observed step (rollout_prior "anchored")
-        if self.head.anchored:
-            anchor = steps.pos[t_obs - 1] - steps.prev_pos[t_obs - 1]  # (B, N, 2)
+        anchors = self._anchors(steps, observed)  # (B, N, K, 2) or None
+        if anchors is not None:
             # the first predicted step too: F_roll on the node output of step T_obs-1 (the
             # LSTM's last h), so the rollout loss trains every step of the rollout's means
             o_last = state.node[0][0].view(*present.shape, -1)  # (B, N, Hn)
-            changes = None  # the highway's (B, N, horizon, 2) world axes, if the model has one
-            if self.highway is not None:
-                changes = self.highway(steps, observed.attention[-1], self.head.anchor_std)
-            if changes is not None:
-                anchor = anchor.unsqueeze(2) + changes  # (B, N, horizon, 2) per predicted step
-            first = anchor if changes is None else anchor[:, :, 0]
-            gaussian = self.head.anchored_step(o_last, prev + first, steps.frame[1])
+            gaussian = self.head.anchored_step(o_last, prev + anchors[:, :, 0], steps.frame[1])
         gaussians, attentions = [gaussian], [observed.attention[-1]]
         for t in range(t_obs, num_steps - 1):
-            step_anchor = anchor
-            if anchor is not None and anchor.dim() == 4:  # highway: this step's velocity change
-                step_anchor = anchor[:, :, min(t + 1 - t_obs, anchor.shape[2] - 1)]
+            anchor = None  # the anchored prior's velocity at predicted step t + 1 - T_obs
+            if anchors is not None:
+                anchor = anchors[:, :, min(t + 1 - t_obs, anchors.shape[2] - 1)]  # (B, N, 2)
             current = gaussian.rsample() if sample else gaussian.mean  # (B, N, 2)
             current = torch.where(present.unsqueeze(-1), current, torch.zeros_like(current))
             labels = None if steps.labels is None else steps.labels[t : t + 1]  # (1, B, N)
@@ -315,7 +306,7 @@ class SmoothAttentionPredictor(nn.Module):
                 steps,
                 labels,
                 state,
-                step_anchor,
+                anchor,
                 presence,
             )
             gaussian = Gaussian2D(block.gaussian.mean[0], block.gaussian.tril[0])  # (B, N, .)
@@ -330,6 +321,20 @@ class SmoothAttentionPredictor(nn.Module):
             attention=torch.stack(attentions, 1),  # (B, T_pred, N, N-1)
             present=present,
         )
+
+    def _anchors(self, steps: _Steps, observed: StepOutputs) -> Tensor | None:
+        """The anchored rollout's velocities (B, N, K, 2) [m/step], world axes, of predicted
+        steps 0 .. K-1 (later ones take the last): the velocity at the last observed step plus
+        the highway's velocity changes over its horizon K (K = 1 without a highway), read with
+        the attention at the last observed step; None with the one-step prior."""
+        if not self.head.anchored:
+            return None
+        t_obs = steps.num_observed
+        velocity = steps.pos[t_obs - 1] - steps.prev_pos[t_obs - 1]  # (B, N, 2)
+        velocity = velocity.unsqueeze(2)  # (B, N, 1, 2)
+        if self.highway is None:
+            return velocity
+        return velocity + self.highway(steps, observed.attention[-1], self.head.anchor_std)
 
     def _run(
         self,
