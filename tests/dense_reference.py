@@ -4,9 +4,11 @@ kept as the reference the packed implementation is tested against.
 `DensePredictor` is `SmoothAttentionPredictor` with the pre-change graph step: every agent
 slot has N-1 edge slots, the edge LSTM runs on all B*N*(N-1) sequences, and the attention is a
 masked softmax over the N-1 slots of each row. Its methods `_run`, `_agent_inputs`,
-`_edge_inputs` and `_attention` are the old ones verbatim (the graph of `_Steps` is ignored);
-`dense_input_stats` is the old `fit_normalisation` statistics over all present pairs. Same
-parameters and buffers as the new model, so one state dict loads into both.
+`_edge_inputs` and `_attention` are the old ones verbatim but for reading the layers and
+statistics from the packed model's parts (`encoder`, `recurrent`, `attention`, `node`,
+`head`); the graph of `_Steps` is ignored. `dense_input_stats` is the old `fit_normalisation`
+statistics over all present pairs. Same parameters and buffers as the new model, so one state
+dict loads into both.
 """
 
 from __future__ import annotations

@@ -65,8 +65,7 @@ from predictor.model.attention import Presence, build_attention, build_role_bias
 from predictor.model.encoders import build_encoder
 from predictor.model.head import build_head
 from predictor.model.highway_maps import build_highway
-from predictor.model.pass_inputs import PassInputs as _Steps
-from predictor.model.pass_inputs import prepare_pass
+from predictor.model.pass_inputs import PassInputs, prepare_pass
 from predictor.model.recurrent import EdgeRecurrence, NodeRecurrence
 from predictor.model.state_names import use_checkpoint_names
 from predictor.outputs import (
@@ -241,12 +240,12 @@ class SmoothAttentionPredictor(nn.Module):
         labels: Tensor | None,
         roles: Tensor | None = None,
         graph_steps: int | None = None,
-    ) -> _Steps:
+    ) -> PassInputs:
         """The time-first inputs of a pass with its neighbour graph (`prepare_pass`)."""
         return prepare_pass(self.config, positions, valid, num_observed, labels, roles, graph_steps)
 
     def _block(
-        self, steps: _Steps, start: int, stop: int, state: RecurrentState | None
+        self, steps: PassInputs, start: int, stop: int, state: RecurrentState | None
     ) -> StepOutputs | None:
         """Teacher-forced steps start .. stop-1 (None if empty).
 
@@ -277,7 +276,7 @@ class SmoothAttentionPredictor(nn.Module):
             state,
         )
 
-    def _rollout(self, steps: _Steps, observed: StepOutputs, sample: bool) -> Rollout:
+    def _rollout(self, steps: PassInputs, observed: StepOutputs, sample: bool) -> Rollout:
         """Feed back samples (or means) from step T_obs on."""
         t_obs = steps.num_observed
         num_steps = steps.pos.shape[0]
@@ -322,7 +321,7 @@ class SmoothAttentionPredictor(nn.Module):
             present=present,
         )
 
-    def _anchors(self, steps: _Steps, observed: StepOutputs) -> Tensor | None:
+    def _anchors(self, steps: PassInputs, observed: StepOutputs) -> Tensor | None:
         """The anchored rollout's velocities (B, N, K, 2) [m/step], world axes, of predicted
         steps 0 .. K-1 (later ones take the last): the velocity at the last observed step plus
         the highway's velocity changes over its horizon K (K = 1 without a highway), read with
@@ -341,7 +340,7 @@ class SmoothAttentionPredictor(nn.Module):
         pos: Tensor,
         prev_pos: Tensor,
         present: Tensor,
-        steps: _Steps,
+        steps: PassInputs,
         labels: Tensor | None,
         state: RecurrentState | None,
         anchor: Tensor | None = None,
