@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_training import ROLE_NAMES, synthetic_batch  # noqa: E402
 
-import predictor.model  # noqa: E402
+import predictor.model.pass_inputs  # noqa: E402
 from predictor.config import resolve_roles  # noqa: E402
 from predictor.graph import neighbour_graph  # noqa: E402
 from predictor.model import SmoothAttentionPredictor  # noqa: E402
@@ -69,14 +69,14 @@ def time_preset(preset: str, repeats: int) -> dict:
         runs[name] = (model, make_optimizer(model, train_cfg), [], [])
     for step in range(repeats + 2):
         for name, (model, optimizer, times, losses) in runs.items():
-            predictor.model.neighbour_graph = paths[name]
+            predictor.model.pass_inputs.neighbour_graph = paths[name]
             torch.manual_seed(step)  # the same rollout samples for both paths
             start = time.perf_counter()
             terms = train_step(model, optimizer, batch, OBSERVED, train_cfg)
             if step >= 2:  # two warm-up steps
                 times.append(time.perf_counter() - start)
             losses.append(terms["loss"])
-    predictor.model.neighbour_graph = neighbour_graph
+    predictor.model.pass_inputs.neighbour_graph = neighbour_graph
     dense, packed = (statistics.median(runs[name][2]) for name in ("dense", "packed"))
     return {
         "preset": preset,

@@ -140,7 +140,7 @@ class ModelConfig:
     Inputs are 2-D positions in metres. Inside the model they are expressed relative to a
     per-scene origin (the mean position of the agents present at the last observed step) and
     divided by `position_scale_m`; offsets between agents are divided by `interaction_scale_m`
-    and per-step displacements by `step_scale_m`. See predictor/model.py for the output
+    and per-step displacements by `step_scale_m`. See predictor/model/head.py for the output
     parametrisation (mean prior, std floor, initial std and gain).
     """
 

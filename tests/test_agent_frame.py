@@ -43,7 +43,7 @@ def trained_looking(model: SmoothAttentionPredictor, seed: int = 1) -> SmoothAtt
     """Give the zero-initialised output layer random weights, so outputs depend on inputs."""
     gen = torch.Generator().manual_seed(seed)
     with torch.no_grad():
-        weight = model.f_pred.weight
+        weight = model.head.f_pred.weight
         weight.copy_(0.3 * torch.randn(weight.shape, generator=gen))
     return model
 
@@ -112,7 +112,7 @@ def test_fit_normalisation_offset_scale_is_the_rms_second_difference_in_agent_fr
     along = (dev * unit[:, None]).sum(-1)
     across = (dev * np.stack([-unit[..., 1], unit[..., 0]], -1)[:, None]).sum(-1)
     expected = np.sqrt([np.mean(along**2), np.mean(across**2)])
-    np.testing.assert_allclose(model.offset_std.numpy(), expected, rtol=1e-4)
+    np.testing.assert_allclose(model.head.offset_std.numpy(), expected, rtol=1e-4)
 
 
 def test_fit_normalisation_anchor_scale_is_the_rms_velocity_change_since_the_last_observation():
@@ -126,7 +126,7 @@ def test_fit_normalisation_anchor_scale_is_the_rms_velocity_change_since_the_las
     along = (change * unit[:, None]).sum(-1)
     across = (change * np.stack([-unit[..., 1], unit[..., 0]], -1)[:, None]).sum(-1)
     expected = np.sqrt([np.mean(along**2), np.mean(across**2)])
-    np.testing.assert_allclose(model.anchor_std.numpy(), expected, rtol=1e-4)
+    np.testing.assert_allclose(model.head.anchor_std.numpy(), expected, rtol=1e-4)
 
 
 def test_anchored_rollout_is_constant_velocity_at_init_and_a_bias_drifts_linearly():
@@ -144,11 +144,11 @@ def test_anchored_rollout_is_constant_velocity_at_init_and_a_bias_drifts_linearl
     torch.testing.assert_close(out, constant_velocity, atol=1e-4, rtol=1e-5)
     bias = torch.tensor([0.5, -2.0])
     with torch.no_grad():
-        model.f_roll.bias.copy_(bias)
+        model.head.f_roll.bias.copy_(bias)
     out = model.predict(positions, valid, 4).rollout.mean
     unit = velocity / velocity.norm(dim=-1, keepdim=True)  # agent frame axes
     normal = torch.stack([-unit[..., 1], unit[..., 0]], -1)
-    local = bias * model.anchor_std  # (2,)
+    local = bias * model.head.anchor_std  # (2,)
     per_step = local[0] * unit + local[1] * normal  # (B, N, 2) world axes
     torch.testing.assert_close(
         out, constant_velocity + (j + 1) * per_step.unsqueeze(1), atol=1e-4, rtol=1e-5
@@ -253,7 +253,7 @@ def test_fit_normalisation_works_for_every_attention_mode():
             ModelConfig(**SMALL, **AGENT, offset_scale="deviation", attention_mode=mode)
         )
         model.fit_normalisation(positions, valid, 4)
-        assert torch.all(model.offset_std > 0)
+        assert torch.all(model.head.offset_std > 0)
 
 
 def test_agent_preset_run_keeps_its_fitted_scales_and_is_deterministic(dataset_file, tmp_path):
@@ -278,9 +278,10 @@ def test_agent_preset_run_keeps_its_fitted_scales_and_is_deterministic(dataset_f
     # statistics below are fitted once, before training
     assert model_cfg.attended_refit
     names = ("input_mean", "input_std", "offset_std", "anchor_std")
+    state, fresh_state = model.state_dict(), fresh.state_dict()  # named as in checkpoints
     for name in names + ("attended_mean", "attended_std"):
-        torch.testing.assert_close(getattr(model, name), getattr(fresh, name))
-    assert not torch.equal(model.input_std, torch.ones_like(model.input_std))
+        torch.testing.assert_close(state[name], fresh_state[name])
+    assert not torch.equal(state["input_std"], torch.ones_like(state["input_std"]))
     first, second = (evaluate_run(run, dataset_file).to_dict() for run in runs)
     first.pop("run"), second.pop("run")
     assert first == second

@@ -140,22 +140,25 @@ def test_refit_reads_the_current_attention_and_cross_fits_the_training_scenes():
     model = SmoothAttentionPredictor(config)
     model.fit_normalisation(train, valid, num_observed)
     model.refit_attended(train, valid, num_observed)
-    first = model.attended_weight.clone()
+    first = model.highway.attended_weight.clone()
     with torch.no_grad():  # another attention, another fit of the same scenes
-        model.f_attn.weight.mul_(5.0)
+        model.attention.f_attn.weight.mul_(5.0)
     model.refit_attended(train, valid, num_observed)
-    assert (model.attended_weight - first).abs().max() > 1e-4
+    assert (model.highway.attended_weight - first).abs().max() > 1e-4
     # training scenes roll out with the maps fitted without their fold, as the plain highway
     scenes = torch.arange(30)
     out = model(train, valid, num_observed, sample=False, scenes=scenes).rollout.mean
     full = model.predict(train, valid, num_observed).rollout.mean
     assert (out - full).abs().max() > 1e-5
+    highway = model.highway
     with torch.no_grad():  # the fold maps made equal to the full ones: the same rollout
-        model.attended_fold_weight.copy_(
-            model.attended_weight.expand_as(model.attended_fold_weight)
+        highway.attended_fold_weight.copy_(
+            highway.attended_weight.expand_as(highway.attended_fold_weight)
         )
-        model.highway_fold_weight.copy_(model.highway_weight.expand_as(model.highway_fold_weight))
-        model.highway_fold_bias.copy_(model.highway_bias.expand_as(model.highway_fold_bias))
+        highway.highway_fold_weight.copy_(
+            highway.highway_weight.expand_as(highway.highway_fold_weight)
+        )
+        highway.highway_fold_bias.copy_(highway.highway_bias.expand_as(highway.highway_fold_bias))
     same = model(train, valid, num_observed, sample=False, scenes=scenes).rollout.mean
     torch.testing.assert_close(same, full)
 
@@ -215,7 +218,7 @@ def test_relation_maps_read_a_car_ahead_and_a_car_behind_differently():
     for relation in (False, True):
         config = ModelConfig(**ORACLE_REFIT, num_roles=2, highway_relation=relation)
         model = SmoothAttentionPredictor(config)
-        assert model.num_maps == (4 if relation else 2)
+        assert model.highway.num_maps == (4 if relation else 2)
         positions, valid, labels, roles = train
         model.fit_normalisation(positions, valid, num_observed, roles)
         model.refit_attended(positions, valid, num_observed, labels, roles)
@@ -334,12 +337,13 @@ def test_edge_relation_maps_read_each_side_exactly_and_mix_by_the_attention():
         model, positions, valid, labels, roles, num_observed
     )
     steps_in = model._prepare(test, test_valid, num_observed, test_labels, test_roles)
-    edges, mask = model._neighbour_features(steps_in)
+    edges, mask = model.highway.neighbour_features(steps_in)
     first, second = torch.zeros_like(mask, dtype=torch.float), torch.zeros_like(mask).float()
     first[..., 0], second[..., 1] = 1.0, 1.0  # one-hot on each agent's first or second edge
     with torch.no_grad():
-        alone = [model._highway(steps_in, theta) for theta in (first, second)]
-        mixed = model._highway(steps_in, 0.3 * first + 0.7 * second)
+        anchor_std = model.head.anchor_std
+        alone = [model.highway(steps_in, theta, anchor_std) for theta in (first, second)]
+        mixed = model.highway(steps_in, 0.3 * first + 0.7 * second, anchor_std)
     both_sides = (edges[..., 0, 0] > 0) != (edges[..., 1, 0] > 0)  # (B, N)
     assert both_sides.sum() >= 8
     expected = 0.3 * alone[0] + 0.7 * alone[1]
@@ -360,7 +364,7 @@ def test_head_groups_keep_the_other_kinds_edges_out_of_a_map():
     oracle = SmoothAttentionPredictor(
         ModelConfig(**common, attention_mode="oracle", highway_head_groups=True)
     )
-    assert oracle.num_maps == 8  # 2 groups x 2 attended groups x 2 relations
+    assert oracle.highway.num_maps == 8  # 2 groups x 2 attended groups x 2 relations
     test, test_valid, test_labels, test_roles = fit_and_read_the_pair_exactly(
         oracle, positions, valid, labels, roles, num_observed
     )
@@ -375,15 +379,16 @@ def test_head_groups_keep_the_other_kinds_edges_out_of_a_map():
             torch.manual_seed(0)
             model = SmoothAttentionPredictor(ModelConfig(**common, highway_head_groups=head_groups))
             with torch.no_grad():  # learned attention with zero scores: equal shares
-                model.f_attn.weight.zero_()
+                model.attention.f_attn.weight.zero_()
             model.fit_normalisation(data, valid, num_observed, roles)
             model.refit_attended(data, valid, num_observed, None, roles)
             steps_in = model._prepare(test, test_valid, num_observed, test_labels, test_roles)
-            _, mask = model._neighbour_features(steps_in)
+            _, mask = model.highway.neighbour_features(steps_in)
             pair = torch.zeros_like(mask, dtype=torch.float)
             pair[:, :, 0] = 1.0  # cars 0 and 1: edge 0 is the other one of the pair
             with torch.no_grad():
-                readings[head_groups, name] = model._highway(steps_in, pair)[:, :2]
+                changes = model.highway(steps_in, pair, model.head.anchor_std)
+                readings[head_groups, name] = changes[:, :2]
     torch.testing.assert_close(readings[True, "original"], readings[True, "moved"])
     difference = (readings[False, "original"] - readings[False, "moved"]).abs().max()
     assert difference > 1e-3

@@ -238,7 +238,7 @@ def live_heads(model: SmoothAttentionPredictor) -> SmoothAttentionPredictor:
     """The model with fixed nonzero output heads (they start at zero, which would make every
     prediction the prior whatever the graph)."""
     with torch.no_grad():
-        for head in (model.f_pred, model.f_cov, model.f_roll):
+        for head in (model.head.f_pred, model.head.f_cov, model.head.f_roll):
             if head is not None:
                 pattern = torch.linspace(-0.2, 0.2, head.weight.numel())
                 head.weight.copy_(pattern.view_as(head.weight))
@@ -312,17 +312,18 @@ def test_the_dense_path_gives_the_packed_paths_losses_and_gradients(preset, monk
     live_heads(model)
     if model.config.frame == "agent":
         model.fit_normalisation(positions, valid, 5, roles)
-    if model.role_pair is not None:
+    if model.role_bias is not None:
+        role_pair = model.role_bias.role_pair
         with torch.no_grad():
-            model.role_pair.copy_(torch.linspace(-1, 1, model.role_pair.numel()).view(3, 3))
+            role_pair.copy_(torch.linspace(-1, 1, role_pair.numel()).view(3, 3))
     runs = []
     for complete in (True, False):
 
         def graph(*args, complete=complete):
             return dataclasses.replace(neighbour_graph(*args), complete=complete)
 
-        monkeypatch.setattr("predictor.model.neighbour_graph", graph)
-        assert model._graph(positions, valid, 5).complete is complete
+        monkeypatch.setattr("predictor.model.pass_inputs.neighbour_graph", graph)
+        assert model._prepare(positions, valid, 5, labels, roles).graph.complete is complete
         runs.append(loss_and_grads(model, positions, valid, labels, roles, focal))
     (out_d, terms_d, grads_d), (out_p, terms_p, grads_p) = runs
     torch.testing.assert_close(out_d.rollout.mean, out_p.rollout.mean)
@@ -335,8 +336,8 @@ def test_standardisation_statistics_equal_the_dense_ones():
     packed, _ = model_pair("learned", "agent")
     packed.fit_normalisation(positions, valid, 5, roles)
     mean, std = dense_input_stats(packed, positions, valid, 5)
-    torch.testing.assert_close(packed.input_mean, mean)
-    torch.testing.assert_close(packed.input_std, std)
+    torch.testing.assert_close(packed.encoder.input_mean, mean)
+    torch.testing.assert_close(packed.encoder.input_std, std)
 
 
 # --------------------------------------------------------------------------- sparse graphs

@@ -180,7 +180,8 @@ def test_the_highway_never_leaves_its_fitted_range_and_old_checkpoints_stay_unbo
     path = torch.cat([extreme[:, num_observed - 2 : num_observed], rollout], 1)
     velocity = path[:, 1:] - path[:, :-1]  # (B, T_pred + 1, N, 2)
     change = (velocity[:, 1:] - velocity[:, :1]).norm(dim=-1)  # (B, T_pred, N)
-    largest = torch.maximum(-model.highway_low, model.highway_high)[0].norm(dim=-1)  # (12,)
+    highway = model.highway
+    largest = torch.maximum(-highway.highway_low, highway.highway_high)[0].norm(dim=-1)  # (12,)
     limit = torch.cat([largest, largest[-1:].expand(steps - num_observed - 12)])
     assert (change <= limit.view(1, -1, 1) + 1e-4).all()
     assert largest.max() < 1.0  # [m/step]: the training scenes' changes are small
@@ -190,7 +191,8 @@ def test_the_highway_never_leaves_its_fitted_range_and_old_checkpoints_stay_unbo
     }
     old = SmoothAttentionPredictor(config)
     old.load_state_dict(old.fill_unclamped_range(state))
-    assert old.highway_high.isinf().all() and (old.highway_low == -math.inf).all()
+    assert old.highway.highway_high.isinf().all()
+    assert (old.highway.highway_low == -math.inf).all()
     unbounded = old.predict(extreme, test_valid, num_observed).rollout.mean
     path = torch.cat([extreme[:, num_observed - 2 : num_observed], unbounded], 1)
     velocity = path[:, 1:] - path[:, :-1]
@@ -337,17 +339,18 @@ def test_attended_highway_starts_as_the_plain_highway_and_reads_the_attention():
     outputs = [m.predict(train, valid, num_observed).rollout.mean for m in models]
     torch.testing.assert_close(outputs[1], outputs[0])  # zero map: no change
     model = models[1]
-    weight = torch.randn(model.attended_weight.shape, generator=torch.Generator().manual_seed(1))
+    highway = model.highway
+    weight = torch.randn(highway.attended_weight.shape, generator=torch.Generator().manual_seed(1))
     with torch.no_grad():  # a random map leaves the fitted range; the range is tested apart
-        model.highway_low.fill_(-math.inf)
-        model.highway_high.fill_(math.inf)
+        highway.highway_low.fill_(-math.inf)
+        highway.highway_high.fill_(math.inf)
 
     def first_step_shift() -> torch.Tensor:
         """What the map moves the first predicted position by (the network's part cancels)."""
         with torch.no_grad():
-            model.attended_weight.copy_(weight)
+            highway.attended_weight.copy_(weight)
             moved = model.predict(train, valid, num_observed)
-            model.attended_weight.zero_()
+            highway.attended_weight.zero_()
             still = model.predict(train, valid, num_observed).rollout.mean
         return (moved.rollout.mean - still)[:, 0], moved.attention[:, -1]
 
@@ -361,11 +364,11 @@ def test_attended_highway_starts_as_the_plain_highway_and_reads_the_attention():
             features,
             mask,
             theta,
-            model.attended_mean,
-            model.attended_std,
+            highway.attended_mean,
+            highway.attended_std,
             weight[0].expand(20, 3, -1, -1, -1),
         )[:, :, 0]
-        * model.anchor_std
+        * model.head.anchor_std
     )  # agent frame
     world = torch.stack(
         [
@@ -376,13 +379,13 @@ def test_attended_highway_starts_as_the_plain_highway_and_reads_the_attention():
     )
     torch.testing.assert_close(shift, world, atol=1e-5, rtol=1e-4)
     with torch.no_grad():  # another attention, another shift
-        model.f_attn.weight.mul_(3.0)
+        model.attention.f_attn.weight.mul_(3.0)
     other, other_theta = first_step_shift()
     assert (other_theta - theta).abs().max() > 1e-3
     assert (other - shift).abs().max() > 1e-4
     loss = model(train, valid, num_observed, sample=False).rollout.mean.square().sum()
     loss.backward()
-    assert model.attended_weight.grad.abs().sum() > 0  # trained by the rollout's loss
+    assert highway.attended_weight.grad.abs().sum() > 0  # trained by the rollout's loss
 
 
 def test_attended_highway_needs_the_highway_and_s_attn_drops_it():

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import pytest
 import torch
-from torch import nn
 
 from predictor.config import ModelConfig
-from predictor.graph import neighbour_graph
 from predictor.losses import attention_tv
-from predictor.model import SmoothAttentionPredictor, run_lstm
+from predictor.model import SmoothAttentionPredictor
 from predictor.outputs import Gaussian2D, edge_index, expand_attention
 from predictor.presets import make_configs
 
@@ -153,7 +151,7 @@ def test_smoothness_gradient_reaches_the_attention_module():
         out.rollout_present.unsqueeze(1).expand(-1, out.rollout_attention.shape[1], -1),
     )
     (total / count + roll_total).backward()
-    grad = model.f_attn.weight.grad
+    grad = model.attention.f_attn.weight.grad
     assert grad is not None and torch.isfinite(grad).all() and grad.abs().sum() > 0
 
 
@@ -195,19 +193,6 @@ def test_untrained_model_predicts_the_mean_prior_with_the_initial_std():
         )
 
 
-def test_split_edge_layer_equals_the_concatenated_input():
-    model = make_model(position_scale_m=50.0, interaction_scale_m=5.0)
-    rel = torch.randn(3, 2, 5, 2)  # (S, B, N, 2) positions at position_scale
-    tail, head = edge_index(5)
-    gain = 50.0 / 5.0  # offsets between agents are read at interaction_scale
-    direct = model.f_interact(
-        torch.cat([rel[:, :, tail], (rel[:, :, head] - rel[:, :, tail]) * gain], -1)
-    )  # (S, B, M, E)
-    graph = neighbour_graph(rel.transpose(0, 1), torch.ones(2, 3, 5, dtype=torch.bool), 3)
-    packed = model._edge_inputs(rel, graph)  # (S, B*M, E): the complete graph, scene-major
-    torch.testing.assert_close(packed, direct.flatten(1, 2))
-
-
 def test_attention_gain_multiplies_the_scores_before_the_softmax():
     """Same weights, gain g: theta_g = softmax(g * s) where theta_1 = softmax(s), so over the
     present others log theta_g = g log theta_1 - logsumexp(g log theta_1)."""
@@ -235,29 +220,6 @@ def test_a_scene_of_one_agent_predicts_as_if_the_others_were_absent():
     assert alone.attention.shape == (2, 4, 1, 0)
     torch.testing.assert_close(alone.rollout.mean, paired.rollout.mean[:, :, :1])
     torch.testing.assert_close(alone.one_step.mean, paired.one_step.mean[:, :, :1])
-
-
-@pytest.mark.parametrize("with_state", [False, True])
-def test_run_lstm_is_nn_lstm_outputs_and_gradients(with_state: bool):
-    # the model calls torch.lstm directly: outputs, final states and every gradient (inputs,
-    # initial state, the four weights) must be nn.LSTM's own
-    torch.manual_seed(0)
-    lstm = nn.LSTM(5, 4).double()
-    x = torch.randn(3, 7, 5, dtype=torch.float64, requires_grad=True)
-    state = None
-    if with_state:
-        h0 = torch.randn(1, 7, 4, dtype=torch.float64, requires_grad=True)
-        c0 = torch.randn(1, 7, 4, dtype=torch.float64, requires_grad=True)
-        state = (h0, c0)
-    leaves = [x, *lstm.parameters(), *(state or ())]
-    results = []
-    for call in (lstm, lambda inputs, hx: run_lstm(lstm, inputs, hx)):
-        out, (h, c) = call(x, state)
-        loss = (out * torch.linspace(-1, 1, 4, dtype=torch.float64)).sum() + h.sum() + 2 * c.sum()
-        results.append((out, h, c, torch.autograd.grad(loss, leaves)))
-    (out_a, h_a, c_a, grads_a), (out_b, h_b, c_b, grads_b) = results
-    for a, b in [(out_a, out_b), (h_a, h_b), (c_a, c_b), *zip(grads_a, grads_b, strict=True)]:
-        torch.testing.assert_close(a, b, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("num_observed", [0, 9])

@@ -21,7 +21,8 @@ def test_role_attention_bias_moves_the_attention_to_a_role():
     config = ModelConfig(**REFIT, num_roles=3, role_attention_bias=True)
     torch.manual_seed(0)
     model = SmoothAttentionPredictor(config)
-    assert model.role_pair.shape == (3, 3) and model.role_pair.abs().sum() == 0
+    role_pair = model.role_bias.role_pair
+    assert role_pair.shape == (3, 3) and role_pair.abs().sum() == 0
     plain = ModelConfig(**REFIT, num_roles=3)
     torch.manual_seed(0)
     without = SmoothAttentionPredictor(plain)
@@ -33,14 +34,14 @@ def test_role_attention_bias_moves_the_attention_to_a_role():
         before, without(positions, valid, 8, sample=False, roles=roles).attention
     )
     with torch.no_grad():
-        model.role_pair[0, 1] = 20.0
+        role_pair[0, 1] = 20.0
     after = model(positions, valid, 8, sample=False, roles=roles).attention  # (B, T, N, N-1)
     assert after[:, :, 0, 0].min() > 0.99  # agent 0 (role 0) attends agent 1 (its edge 0)
     torch.testing.assert_close(after[:, :, 1:], before[:, :, 1:])  # the others unchanged
     # without roles every agent is of one kind, and one bias for every pair would shift all
     # scores alike (the softmax ignores it): the model then has none
     no_roles = SmoothAttentionPredictor(ModelConfig(**REFIT, role_attention_bias=True))
-    assert no_roles.role_pair is None
+    assert no_roles.role_bias is None
 
 
 def test_role_balanced_attention_divides_each_weight_by_its_roles_count():

@@ -53,7 +53,7 @@ def test_role_columns_are_the_only_difference_from_a_role_free_model():
     got = with_roles.predict(positions, valid, 4, roles=roles).rollout.mean
     torch.testing.assert_close(got, expected)
     with torch.no_grad():
-        with_roles.f_self[0].weight[:, -3:].normal_()  # now the roles matter
+        with_roles.encoder.f_self[0].weight[:, -3:].normal_()  # now the roles matter
     moved = with_roles.predict(positions, valid, 4, roles=roles).rollout.mean
     swapped = with_roles.predict(positions, valid, 4, roles=roles.flip(-1)).rollout.mean
     assert (moved - expected).abs().max() > 1e-3
@@ -127,7 +127,7 @@ def test_without_role_input_the_network_ignores_roles_but_the_highway_reads_them
         model = SmoothAttentionPredictor(config)
         randomise(model, seed=2)
         columns = 2 + (3 if role_input else 0)
-        assert model.f_embed[0].in_features == columns
+        assert model.encoder.f_embed[0].in_features == columns
         outputs[role_input] = [
             model.predict(positions, valid, 6, roles=r).rollout.mean for r in (roles, swapped)
         ]
@@ -137,8 +137,9 @@ def test_without_role_input_the_network_ignores_roles_but_the_highway_reads_them
     model = SmoothAttentionPredictor(config)
     randomise(model, seed=2)
     with torch.no_grad():  # a different highway map per role, its output range left open
-        model.highway_weight.copy_(0.1 * torch.randn(model.highway_weight.shape))
-        model.highway_low.fill_(-math.inf)
-        model.highway_high.fill_(math.inf)
+        highway = model.highway
+        highway.highway_weight.copy_(0.1 * torch.randn(highway.highway_weight.shape))
+        highway.highway_low.fill_(-math.inf)
+        highway.highway_high.fill_(math.inf)
     out = [model.predict(positions, valid, 6, roles=r).rollout.mean for r in (roles, swapped)]
     assert (out[0] - out[1]).abs().max() > 1e-4  # the highway still picks its map by role

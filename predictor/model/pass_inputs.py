@@ -1,6 +1,6 @@
-"""The inputs of one pass of the model (`SmoothAttentionPredictor._prepare`): time-first
-positions, the previous positions the inputs difference against, presence, labels, frames,
-roles and the pass's neighbour graph."""
+"""The inputs of one pass of the model (`prepare_pass`): time-first positions, the previous
+positions the inputs difference against, presence, labels, frames, roles and the pass's
+neighbour graph (predictor.graph), which every part of the model reads."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from torch import Tensor
 
 from predictor.agent_frame import AgentFrame, agent_frames
 from predictor.config import ModelConfig
-from predictor.graph import Graph
+from predictor.graph import Graph, neighbour_graph
 
 
 @dataclass
@@ -47,10 +47,12 @@ def prepare_pass(
     num_observed: int,
     labels: Tensor | None,
     roles: Tensor | None,
+    graph_steps: int | None = None,
 ) -> PassInputs:
     """A batch (B, T, N, .) as the time-first inputs of a pass of a model with `config`, after
-    checking that the batch has what the model reads (a ValueError if not); the caller adds
-    the pass's neighbour graph.
+    checking that the batch has what the model reads (a ValueError if not), with the pass's
+    neighbour graph of the configured kind, chosen from the first `graph_steps` steps (None:
+    all; a prediction reads only the observed ones).
 
     An agent absent at t-1 takes its current position as the previous one (zero velocity); two
     steps back is the position there where the agent was present then and since, else the one
@@ -83,4 +85,12 @@ def prepare_pass(
         frame=agent_frames(positions, valid, num_observed) if config.frame == "agent" else None,
         roles=role_inputs if config.role_input else None,
         role_index=None if role_inputs is None else roles.long(),
+        graph=neighbour_graph(
+            positions[:, :graph_steps],
+            valid[:, :graph_steps],
+            num_observed,
+            config.neighbours,
+            config.neighbour_radius_m,
+            config.neighbour_k,
+        ),
     )

@@ -1,0 +1,5 @@
+"""The smooth-attention trajectory predictor `SmoothAttentionPredictor` (its module: predictor)."""
+
+from predictor.model.predictor import SmoothAttentionPredictor
+
+__all__ = ["SmoothAttentionPredictor"]
