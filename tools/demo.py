@@ -19,6 +19,7 @@ replaced only with --overwrite.
 
 from __future__ import annotations
 
+import gc
 import json
 import shutil
 import sys
@@ -47,6 +48,7 @@ from pipeline.generation import (
     UnsafeExpertError,
     generate_dataset,
 )
+from pipeline.signals import DeferredSignals
 from pipeline.viewer import ViewerError, write_viewer
 from predictor.evaluation import EvaluationError, evaluate_baseline, evaluate_run
 from predictor.plots import plot_attention, plot_predictions, plot_samples, save_figure
@@ -173,6 +175,11 @@ def run_demo(out: Path, config: GenerateConfig, model_cfg, train_cfg) -> None:
     the results on its last line; bars and status lines on stderr."""
     started = time.perf_counter()
     print(f"== simulate: wrote {simulate_episode(out, config.seed)}", flush=True)
+    # the episode's pymunk space is freed by the cyclic garbage collector through cffi callbacks,
+    # where a Ctrl-C is printed and lost (pipeline.signals): free it now, with signals deferred,
+    # not at some moment of the training (a Ctrl-C there was lost in two loaded full-suite runs)
+    with DeferredSignals():
+        gc.collect()
     data = out / f"{DEMO_SCENARIO}.h5"
     print("== generate", flush=True)
     print(generate_dataset(config, data).summary(), flush=True)
