@@ -1,6 +1,7 @@
 """Configuration of the smooth-attention predictor: model sizes, training settings, variants.
 
-Every experiment variant of the paper is configuration of one model (see `VARIANTS`):
+Every experiment variant of the paper is configuration of one model (`VARIANTS`, from the
+registry of predictors, `predictor.registry`, which adds a variant as one entry):
 
 | variant     | attention                         | sequence loss | smoothness (beta2) |
 |-------------|-----------------------------------|---------------|--------------------|
@@ -14,9 +15,10 @@ Every experiment variant of the paper is configuration of one model (see `VARIAN
 For `average` and `correct` the attention has no parameters, so a smoothness term would be a
 constant without gradient; it is fixed to 0.
 
-Named presets and the composition of a preset with a variant (`make_configs`):
-predictor.presets. How configs are stored in checkpoints and run directories, and read back:
-predictor.stored_config.
+Each field's comment is its documentation: `predictor.settings` builds the command line's
+settings tree from it. Named presets and the composition of a preset with a variant
+(`make_configs`): predictor.presets. How configs are stored in checkpoints and run
+directories, and read back: predictor.stored_config.
 """
 
 from __future__ import annotations
