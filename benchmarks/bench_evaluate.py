@@ -22,7 +22,7 @@ from pathlib import Path
 import torch
 
 from pipeline.generation import GenerateConfig, generate_dataset
-from predictor.evaluation import predict_baseline, predict_model, score
+from predictor.forecasting import predict_baseline, predict_model, score
 from predictor.model import SmoothAttentionPredictor
 from predictor.predictions import Predictions
 from predictor.presets import make_configs

@@ -140,8 +140,8 @@ def evaluate(
     all agents per case and the attention accuracy; `headline()` is one line of them.
 
     Raises ValueError unless exactly one of `run` and `baseline` is given,
-    `predictor.evaluation.CheckpointError` for a missing or unreadable run,
-    `predictor.evaluation.EvaluationError` for an unknown baseline, an empty split or data of
+    `predictor.checkpoints.CheckpointError` for a missing or unreadable run,
+    `predictor.forecasting.EvaluationError` for an unknown baseline, an empty split or data of
     another scenario than the run's, `trajectory_data.format.FormatError` for a bad data file.
     """
     if (run is None) == (baseline is None):

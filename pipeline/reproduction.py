@@ -208,7 +208,7 @@ def evaluate_job(job: Job) -> None:
 def resumed_graph_step(run: Path) -> bool:
     """Whether the checkpoint a run resumes from (last.pt) trained with a compiled graph step;
     CheckpointError for an unreadable one, as resuming it would raise."""
-    from predictor.evaluation import read_checkpoint
+    from predictor.checkpoints import read_checkpoint
 
     return bool(read_checkpoint(run / "last.pt")["train_config"].get("compile_graph_step", False))
 

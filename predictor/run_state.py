@@ -26,9 +26,9 @@ from typing import Any
 import torch
 
 from predictor import __version__
+from predictor.checkpoints import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, read_checkpoint
 from predictor.compiled_step import compile_graph_step, compiler_missing
 from predictor.config import ModelConfig, TrainConfig, resolve_roles
-from predictor.evaluation import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, read_checkpoint
 from predictor.model import SmoothAttentionPredictor
 from predictor.presets import PRESET_FIELDS, make_configs
 from predictor.random_state import rng_state, seed_everything, set_rng_state

@@ -41,14 +41,10 @@ import torch
 from tqdm import tqdm
 
 from predictor import __version__
+from predictor.checkpoints import CheckpointError, read_checkpoint
 from predictor.config import ModelConfig, TrainConfig, resolve_roles
-from predictor.evaluation import (
-    CheckpointError,
-    json_safe,
-    predict_model,
-    read_checkpoint,
-    score,
-)
+from predictor.evaluation import json_safe
+from predictor.forecasting import predict_model, score
 from predictor.losses import LossWeights, compute_loss
 from predictor.model import SmoothAttentionPredictor
 from predictor.predictions import Predictions

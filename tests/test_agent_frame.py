@@ -259,7 +259,8 @@ def test_fit_normalisation_works_for_every_attention_mode():
 def test_agent_preset_run_keeps_its_fitted_scales_and_is_deterministic(dataset_file, tmp_path):
     """The training split's statistics travel in the checkpoint; a second run with the same
     seed gives the same weights and the same evaluation."""
-    from predictor.evaluation import evaluate_run, load_model
+    from predictor.checkpoints import load_model
+    from predictor.evaluation import evaluate_run
     from predictor.training import train
     from trajectory_data.torch_dataset import TrajectoryDataset
 

@@ -12,7 +12,8 @@ import pytest
 from conftest import downgrade_to_schema_1, make_meta, make_trajectory_set
 
 from predictor.baselines import RidgeBaseline, RidgeConfig, displacement_heading
-from predictor.evaluation import EvaluationError, evaluate_baseline
+from predictor.evaluation import evaluate_baseline
+from predictor.forecasting import EvaluationError
 from predictor.metrics import prediction_mask
 from predictor.presets import make_configs
 from predictor.run_files import RunError

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 import torch
 
+from predictor.checkpoints import load_model
 from predictor.config import resolve_roles
-from predictor.evaluation import load_model
 from predictor.model import SmoothAttentionPredictor
 from predictor.presets import make_configs
 from predictor.run_state import make_optimizer

@@ -22,7 +22,7 @@ from conftest import REPO_ROOT, load_tool, run_tool, tool_env
 from scipy import stats
 from test_viewer import page_content
 
-from predictor.evaluation import read_checkpoint
+from predictor.checkpoints import read_checkpoint
 from trajectory_data.reader import read_split
 
 reproduce = load_tool("reproduce.py")

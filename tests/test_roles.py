@@ -83,7 +83,8 @@ def test_roles_from_data_resolve_to_the_number_of_role_names():
 
 
 def test_a_training_run_stores_the_resolved_role_count(dataset_file, tmp_path):
-    from predictor.evaluation import evaluate_run, load_model
+    from predictor.checkpoints import load_model
+    from predictor.evaluation import evaluate_run
     from predictor.training import train
 
     overrides = {**SMALL, "num_roles": ROLES_FROM_DATA}
@@ -99,7 +100,8 @@ def test_a_training_run_stores_the_resolved_role_count(dataset_file, tmp_path):
 def test_evaluation_refuses_data_with_other_role_names(make_dataset_file, tmp_path):
     import h5py
 
-    from predictor.evaluation import EvaluationError, evaluate_run
+    from predictor.evaluation import evaluate_run
+    from predictor.forecasting import EvaluationError
     from predictor.training import train
 
     train_file = make_dataset_file("train.h5")

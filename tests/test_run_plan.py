@@ -205,7 +205,7 @@ def test_a_compiled_protocol_plans_the_eager_runs_and_a_resumed_run_keeps_its_mo
     import torch
 
     import predictor.training
-    from predictor.evaluation import CHECKPOINT_FORMAT, CHECKPOINT_VERSION
+    from predictor.checkpoints import CHECKPOINT_FORMAT, CHECKPOINT_VERSION
 
     setting = SETTING_BY_NAME["hc_go"]
     eager = Protocol((setting,), ("ours",), 2, 3)

@@ -288,7 +288,7 @@ def test_bad_input_is_one_line_and_exit_2(smoke, tmp_path, capsys, tool, args, m
 def test_checkpoint_missing_a_config_field_is_rejected(smoke, tmp_path: Path):
     import torch
 
-    from predictor.evaluation import CheckpointError, load_model
+    from predictor.checkpoints import CheckpointError, load_model
 
     checkpoint = torch.load(smoke["run"] / "best.pt", weights_only=True)
     load_model(smoke["run"] / "best.pt")  # the intact file loads
@@ -304,7 +304,7 @@ def test_checkpoint_of_an_older_version_loads_with_the_behaviour_it_was_trained_
 ):
     import torch
 
-    from predictor.evaluation import load_model
+    from predictor.checkpoints import load_model
     from predictor.run_state import resume_configs
     from predictor.stored_config import ADDED_MODEL_FIELDS, ADDED_TRAIN_FIELDS
 
@@ -357,7 +357,7 @@ def test_checkpoint_that_used_a_removed_option_is_refused_in_one_line(smoke, tmp
 def test_train_keeps_the_neighbour_graph_in_the_checkpoint(smoke, tmp_path: Path, capsys):
     import torch
 
-    from predictor.evaluation import load_model
+    from predictor.checkpoints import load_model
 
     run = tmp_path / "radius"
     args = ["--data", smoke["data"], "--out", run, "--epochs", "1", "--no-progress", *TINY]

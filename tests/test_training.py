@@ -349,7 +349,7 @@ def test_an_overwrite_killed_before_its_checkpoint_loses_nothing_on_the_next_try
 def test_resume_from_a_checkpoint_without_its_state_is_one_clear_error(
     braking_file: Path, tmp_path: Path
 ):
-    from predictor.evaluation import CheckpointError
+    from predictor.checkpoints import CheckpointError
 
     model_cfg, train_cfg = tiny_configs(epochs=1)
     run = tmp_path / "run"

@@ -19,7 +19,8 @@ from pipeline.generation import GenerateConfig, generate_dataset
 from pipeline.viewer import ViewerError, make_viewer, write_viewer
 from pipeline.viewer.pack import dequantize_unit, pack, quantize_unit, unpack
 from pipeline.viewer.scores import scene_scores
-from predictor.evaluation import evaluate_baseline, evaluate_run, score
+from predictor.evaluation import evaluate_baseline, evaluate_run
+from predictor.forecasting import score
 from predictor.predictions import load_predictions
 from predictor.presets import make_configs
 from predictor.training import train

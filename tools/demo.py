@@ -50,7 +50,8 @@ from pipeline.generation import (
 )
 from pipeline.signals import DeferredSignals
 from pipeline.viewer import ViewerError, write_viewer
-from predictor.evaluation import EvaluationError, evaluate_baseline, evaluate_run
+from predictor.evaluation import evaluate_baseline, evaluate_run
+from predictor.forecasting import EvaluationError
 from predictor.plots import plot_attention, plot_predictions, plot_samples, save_figure
 from predictor.presets import DEFAULT_PRESET, make_configs
 from predictor.run_files import RunError, RunWriteError

@@ -49,15 +49,9 @@ from pipeline.cli import (
     writing,
 )
 from predictor.baselines import BASELINES
-from predictor.evaluation import (
-    CHECKPOINTS,
-    CheckpointError,
-    Evaluation,
-    EvaluationError,
-    ScenarioMismatchError,
-    evaluate_baseline,
-    evaluate_run,
-)
+from predictor.checkpoints import CHECKPOINTS, CheckpointError
+from predictor.evaluation import Evaluation, ScenarioMismatchError, evaluate_baseline, evaluate_run
+from predictor.forecasting import EvaluationError
 from trajectory_data.format import FormatError
 
 

@@ -40,8 +40,8 @@ from pipeline.cli import (
     run_main,
     write_failure_code,
 )
+from predictor.checkpoints import CheckpointError
 from predictor.config import VARIANTS, ModelConfig, TrainConfig
-from predictor.evaluation import CheckpointError
 from predictor.presets import DEFAULT_PRESET, PRESETS
 from predictor.run_files import RunError, RunWriteError
 from predictor.run_state import RESUME_MAY_CHANGE, ResumeMismatch, resume_configs, run_status

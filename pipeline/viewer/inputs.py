@@ -189,7 +189,9 @@ def _check_run(
 
 
 def _evaluate(run: RunInfo, data_path: str | os.PathLike, split: str, progress: bool):
-    from predictor.evaluation import CheckpointError, EvaluationError, evaluate_run
+    from predictor.checkpoints import CheckpointError
+    from predictor.evaluation import evaluate_run
+    from predictor.forecasting import EvaluationError
 
     try:
         return evaluate_run(run.path, data_path, split, "best", progress=progress).predictions
