@@ -7,6 +7,7 @@ build the data; the fixtures `make_dataset_file` and `dataset_file` wrap them fo
 
 from __future__ import annotations
 
+import errno
 import importlib.util
 import os
 import signal
@@ -244,3 +245,54 @@ def one_line(err: pytest.ExceptionInfo) -> str:
     message = str(err.value)
     assert "\n" not in message
     return message
+
+
+# ---- the command-line smoke run of tests/test_train_cli.py and test_evaluate_cli.py ----
+# tiny network sizes, as train.py takes them
+TINY = [
+    *("--set", "model.embed_dim=8", "--set", "model.edge_hidden=8"),
+    *("--set", "model.node_hidden=12", "--set", "model.attn_dim=4"),
+]
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory) -> dict:
+    """Train 2 epochs of the paper preset and evaluate once, in subprocesses."""
+    from test_training import write_braking_dataset  # a test module: imported when used
+
+    root = tmp_path_factory.mktemp("smoke")
+    data = write_braking_dataset(root / "braking.h5", counts=(6, 3, 4))
+    run = root / "run"
+    trained = run_tool(
+        "train.py",
+        "--data",
+        data,
+        "--out",
+        run,
+        "--epochs",
+        "2",
+        "--seed",
+        "0",
+        "--set",
+        "train.batch_size=4",
+        "--preset",
+        "paper",
+        *TINY,
+    )
+    evaluated = run_tool(
+        "evaluate.py", "--run", run, "--data", data, "--save-predictions", root / "pred.npz"
+    )
+    return {"root": root, "data": data, "run": run, "trained": trained, "evaluated": evaluated}
+
+
+def refuse_writes_in(monkeypatch, directory: Path) -> None:
+    """Simulate a read-only `directory` (root ignores permission bits): renaming a finished
+    temporary file into it raises EACCES, as on a read-only mount."""
+    real = os.replace
+
+    def replace(src, dst) -> None:
+        if Path(dst).parent == directory:
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(dst))
+        real(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace)

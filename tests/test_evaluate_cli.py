@@ -1,24 +1,19 @@
-"""tools/train.py and tools/evaluate.py: a subprocess smoke run and one-line usage errors."""
+"""tools/evaluate.py (on conftest's `smoke` run): the JSON and predictions it writes, the
+baselines, the library behind it, another scenario's data, and one-line errors of both tools."""
 
 from __future__ import annotations
 
-import errno
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import REPO_ROOT, load_tool, run_tool, tool_env
+from conftest import REPO_ROOT, load_tool, refuse_writes_in, run_tool, tool_env
 from test_training import write_braking_dataset
 
-TINY = [
-    *("--set", "model.embed_dim=8", "--set", "model.edge_hidden=8"),
-    *("--set", "model.node_hidden=12", "--set", "model.attn_dim=4"),
-]
 NPZ_KEYS = {
     "format",
     "version",
@@ -40,45 +35,6 @@ NPZ_KEYS = {
     "num_observed",
     "dt",
 }
-
-
-@pytest.fixture(scope="module")
-def smoke(tmp_path_factory) -> dict:
-    """Train 2 epochs of the paper preset and evaluate once, in subprocesses."""
-    root = tmp_path_factory.mktemp("smoke")
-    data = write_braking_dataset(root / "braking.h5", counts=(6, 3, 4))
-    run = root / "run"
-    trained = run_tool(
-        "train.py",
-        "--data",
-        data,
-        "--out",
-        run,
-        "--epochs",
-        "2",
-        "--seed",
-        "0",
-        "--set",
-        "train.batch_size=4",
-        "--preset",
-        "paper",
-        *TINY,
-    )
-    evaluated = run_tool(
-        "evaluate.py", "--run", run, "--data", data, "--save-predictions", root / "pred.npz"
-    )
-    return {"root": root, "data": data, "run": run, "trained": trained, "evaluated": evaluated}
-
-
-def test_train_smoke_run_writes_the_run_files(smoke):
-    trained = smoke["trained"]
-    assert trained.returncode == 0, trained.stderr
-    assert trained.stdout.strip().count("\n") == 0 and "trained ours for 2 epochs" in trained.stdout
-    assert "train ours" in trained.stderr  # the tqdm bar
-    run = smoke["run"]
-    assert {p.name for p in run.iterdir()} >= {"config.json", "metrics.jsonl", "best.pt", "last.pt"}
-    lines = (run / "metrics.jsonl").read_text().splitlines()
-    assert [json.loads(line)["epoch"] for line in lines] == [1, 2]
 
 
 def test_evaluate_writes_json_and_predictions(smoke):
@@ -285,94 +241,6 @@ def test_bad_input_is_one_line_and_exit_2(smoke, tmp_path, capsys, tool, args, m
     assert "Traceback" not in err
 
 
-def test_checkpoint_missing_a_config_field_is_rejected(smoke, tmp_path: Path):
-    import torch
-
-    from predictor.checkpoints import CheckpointError, load_model
-
-    checkpoint = torch.load(smoke["run"] / "best.pt", weights_only=True)
-    load_model(smoke["run"] / "best.pt")  # the intact file loads
-    del checkpoint["model_config"]["mean_prior"]  # as written by an older model version
-    old = tmp_path / "old.pt"
-    torch.save(checkpoint, old)
-    with pytest.raises(CheckpointError, match="lacks field"):
-        load_model(old)
-
-
-def test_checkpoint_of_an_older_version_loads_with_the_behaviour_it_was_trained_with(
-    smoke, tmp_path: Path
-):
-    import torch
-
-    from predictor.checkpoints import load_model
-    from predictor.run_state import resume_configs
-    from predictor.stored_config import ADDED_MODEL_FIELDS, ADDED_TRAIN_FIELDS
-
-    checkpoint = torch.load(smoke["run"] / "best.pt", weights_only=True)
-    model, _ = load_model(smoke["run"] / "best.pt")
-    assert {"neighbours", "highway_attended"} <= set(ADDED_MODEL_FIELDS)
-    assert "bucket_batches" in ADDED_TRAIN_FIELDS
-    for name in ("neighbours", "neighbour_k", "highway_attended", "attention_gain"):
-        del checkpoint["model_config"][name]  # as written before these fields existed
-    for name in ("bucket_batches", "compile_graph_step", "device"):
-        del checkpoint["train_config"][name]
-    old = tmp_path / "old"
-    shutil.copytree(smoke["run"], old)
-    torch.save(checkpoint, old / "best.pt")
-    torch.save(checkpoint, old / "last.pt")
-    restored, _ = load_model(old / "best.pt")
-    assert restored.config == model.config  # the smoke run used the paper's values
-    for name, value in model.state_dict().items():
-        torch.testing.assert_close(restored.state_dict()[name], value)
-    _, train_config = resume_configs(old, {"epochs": 3})
-    assert train_config.bucket_batches is False and train_config.epochs == 3
-    assert train_config.device == "cpu"  # a field added at its default: nothing listed for it
-
-
-def test_checkpoint_that_used_a_removed_option_is_refused_in_one_line(smoke, tmp_path: Path):
-    """A run written while the rejected options existed loads where it left them at the value
-    the current code computes, and is refused, naming the option and the commit, where not."""
-    import torch
-
-    from predictor.stored_config import REMOVED_IN, REMOVED_MODEL_FIELDS, REMOVED_TRAIN_FIELDS
-
-    checkpoint = torch.load(smoke["run"] / "best.pt", weights_only=True)
-    checkpoint["model_config"].update(REMOVED_MODEL_FIELDS)  # as written before the removal
-    checkpoint["train_config"].update(REMOVED_TRAIN_FIELDS)
-    for name, changes in (("neutral", {}), ("used", {"observed_jitter": 2})):
-        run = tmp_path / name
-        shutil.copytree(smoke["run"], run)
-        stored = {**checkpoint, "train_config": {**checkpoint["train_config"], **changes}}
-        if changes:
-            stored["model_config"] = {**stored["model_config"], "acceleration_input": True}
-        torch.save(stored, run / "best.pt")
-        result = run_tool("evaluate.py", "--run", run, "--data", smoke["data"], "--overwrite")
-        if not changes:
-            assert result.returncode == 0, result.stderr
-            continue
-        assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
-        assert "acceleration_input=True" in result.stderr and REMOVED_IN in result.stderr
-
-
-def test_train_keeps_the_neighbour_graph_in_the_checkpoint(smoke, tmp_path: Path, capsys):
-    import torch
-
-    from predictor.checkpoints import load_model
-
-    run = tmp_path / "radius"
-    args = ["--data", smoke["data"], "--out", run, "--epochs", "1", "--no-progress", *TINY]
-    graph = ["--set", "model.neighbours=radius", "--set", "model.neighbour_radius_m=15"]
-    graph += ["--set", "train.bucket_batches=no"]
-    load_tool("train.py").main([str(a) for a in [*args, *graph]])
-    assert "trained ours for 1 epochs" in capsys.readouterr().out
-    stored = torch.load(run / "best.pt", weights_only=True)
-    assert stored["model_config"]["neighbours"] == "radius"
-    assert stored["model_config"]["neighbour_radius_m"] == 15.0
-    assert stored["train_config"]["bucket_batches"] is False
-    model, _ = load_model(run / "best.pt")
-    assert (model.config.neighbours, model.config.neighbour_radius_m) == ("radius", 15.0)
-
-
 def write_other_dataset(path: Path) -> Path:
     """The smoke data's scenario with dt 0.1 s and 9 predicted steps."""
     import h5py
@@ -461,24 +329,11 @@ def test_another_scenario_with_other_shapes_or_timing_stays_refused(
     assert not (tmp_path / "e.json").exists()
 
 
-def _refuse_writes_in(monkeypatch, directory: Path) -> None:
-    """Simulate a read-only `directory` (root ignores permission bits): renaming a finished
-    temporary file into it raises EACCES, as on a read-only mount."""
-    real = os.replace
-
-    def replace(src, dst) -> None:
-        if Path(dst).parent == directory:
-            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(dst))
-        real(src, dst)
-
-    monkeypatch.setattr(os, "replace", replace)
-
-
 @pytest.mark.parametrize("target", ["--out", "--save-predictions"])
 def test_evaluate_unwritable_output_is_one_line(smoke, tmp_path, capsys, monkeypatch, target):
     read_only = tmp_path / "ro"
     read_only.mkdir()
-    _refuse_writes_in(monkeypatch, read_only)
+    refuse_writes_in(monkeypatch, read_only)
     outputs = {"--out": tmp_path / "e.json", "--save-predictions": tmp_path / "p.npz"}
     outputs[target] = read_only / ("e.json" if target == "--out" else "p.npz")
     argv = ["--baseline", "const_vel", "--data", str(smoke["data"]), "--no-progress"]
@@ -491,38 +346,6 @@ def test_evaluate_unwritable_output_is_one_line(smoke, tmp_path, capsys, monkeyp
     assert not list(read_only.iterdir())
     if target == "--save-predictions":  # the JSON is written last: nothing was written
         assert not (tmp_path / "e.json").exists()
-
-
-def test_train_unwritable_run_directory_is_one_line(smoke, tmp_path, capsys, monkeypatch):
-    run = tmp_path / "run"
-    _refuse_writes_in(monkeypatch, run)
-    argv = ["--data", str(smoke["data"]), "--out", str(run), "--epochs", "1", "--no-progress"]
-    with pytest.raises(SystemExit) as exit_info:
-        load_tool("train.py").main([*argv, *TINY])
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err
-    assert err == f"error: cannot write {run / 'config.json'}: Permission denied\n"
-    assert not run.exists()
-
-
-def test_train_interrupted_in_the_first_epoch_keeps_nothing(smoke, tmp_path, capsys, monkeypatch):
-    import predictor.training
-
-    def interrupt(*args, **kwargs):
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(predictor.training, "train_step", interrupt)
-    run = tmp_path / "run"
-    argv = ["--data", str(smoke["data"]), "--out", str(run), "--no-progress", *TINY]
-    with pytest.raises(SystemExit) as exit_info:
-        load_tool("train.py").main(argv)
-    assert exit_info.value.code == 130
-    err = capsys.readouterr().err
-    assert err == (
-        f"error: interrupted before the first epoch ended; nothing was kept in {run}; run the "
-        "same command again to start over\n"
-    )
-    assert not run.exists()
 
 
 def test_evaluation_library_matches_the_tool_and_an_independent_ade(smoke, tmp_path):
@@ -558,30 +381,3 @@ def test_evaluation_library_matches_the_tool_and_an_independent_ade(smoke, tmp_p
         "attention_accuracy",
         "diagnostics",
     }
-
-
-def test_a_cuda_device_where_torch_finds_none_is_one_line_and_writes_nothing(smoke, tmp_path):
-    import torch
-
-    if torch.cuda.is_available():
-        pytest.skip("this machine has a CUDA device")
-    run = tmp_path / "gpu"
-    result = run_tool("train.py", "--data", smoke["data"], "--out", run, "--device", "cuda")
-    assert result.returncode == 2 and not run.exists()
-    assert result.stderr == "error: train.device is 'cuda', but torch finds no CUDA device here\n"
-    bad = run_tool("train.py", "--data", smoke["data"], "--out", run, "--device", "gpu")
-    assert bad.returncode == 2 and "train.device must be 'cpu', 'cuda' or 'cuda:N'" in bad.stderr
-
-
-def test_an_explicit_cpu_device_trains_what_the_default_trains(smoke, tmp_path):
-    import torch
-
-    common = ["--data", smoke["data"], "--epochs", "1", "--preset", "paper", *TINY]
-    for name, extra in (("default", []), ("cpu", ["--device", "cpu"])):
-        assert run_tool("train.py", *common, "--out", tmp_path / name, *extra).returncode == 0
-    weights = [
-        torch.load(tmp_path / name / "last.pt", weights_only=True)["model_state"]
-        for name in ("default", "cpu")
-    ]
-    assert weights[0].keys() == weights[1].keys()
-    assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
