@@ -296,6 +296,12 @@ class ModelConfig:
     # (Halting Car v1; at most the 8th in Double Merge v1), so 16 keeps every labelled pair.
     # Pedestrian crowds want far fewer (e.g. 8, or a radius of a few metres).
     neighbour_k: int = 16
+    # --- the predictive distribution ---
+    # Trajectory modes: M > 1 adds a mixture of M whole futures around the rollout, trained by
+    # the mixture's likelihood of each agent's future (predictor.model.modes), so that samples
+    # and best-of-K scores can cover distinct outcomes; 1: the paper's one Gaussian per step.
+    # Needs rollout_prior "anchored" (its velocity unit).
+    modes: int = 1
 
     def __post_init__(self) -> None:
         require_finite(self)
@@ -405,6 +411,7 @@ MODEL_RULES: dict[str, Rule] = {
     "highway_steps": Rule("0 or >= 2", lambda v, _: v == 0 or v >= 2),
     "highway_horizon": at_least(1),
     "highway_min_std": at_least(0),
+    "modes": at_least(1),
 }
 # What a field needs when it is not at its default: (description, test of the config) pairs.
 MODEL_NEEDS: dict[str, tuple[tuple[str, Callable[[Any], bool]], ...]] = {
@@ -425,6 +432,7 @@ MODEL_NEEDS: dict[str, tuple[tuple[str, Callable[[Any], bool]], ...]] = {
     "highway_head_groups": (
         ("attended_fit='edge_relations'", lambda c: c.attended_fit == "edge_relations"),
     ),
+    "modes": (("rollout_prior='anchored'", lambda c: c.rollout_prior == "anchored"),),
 }
 TRAIN_RULES: dict[str, Rule] = {
     "lr_schedule": one_of(LR_SCHEDULES),

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from predictor.outputs import Gaussian2D, ModelOutput
+from predictor.outputs import Gaussian2D, ModelOutput, TrajectoryMixture
 
 LOG_2PI = math.log(2.0 * math.pi)
 
@@ -104,6 +104,19 @@ def main_agent_weights(focal: Tensor | None, main_weight: float, like: Tensor) -
     return torch.where(focal, one * main_weight, one).unsqueeze(1)  # (B, 1, N)
 
 
+def mode_nll(
+    modes: TrajectoryMixture, target: Tensor, mask: Tensor, agent_weight: Tensor | None = None
+) -> Tensor:
+    """-log sum_m pi_m prod_t N(target_t | mode m) per agent, summed over the agents and
+    divided by their counted steps (so it reads per agent-step, as the NLL terms do).
+    target (B, T_pred, N, 2), mask (B, T_pred, N); agent_weight (B, 1, N) or None."""
+    log_prob = modes.trajectory_log_prob(target, mask)  # (B, N)
+    steps = mask.sum(1).to(log_prob.dtype)  # (B, N)
+    if agent_weight is not None:
+        log_prob, steps = log_prob * agent_weight[:, 0], steps * agent_weight[:, 0]
+    return -log_prob.sum() / steps.sum().clamp(min=1)
+
+
 @dataclass(frozen=True)
 class LossWeights:
     """Weights of the loss terms (paper: beta1 = beta2 = 0.01, tau = 1e-3 m)."""
@@ -180,6 +193,9 @@ def compute_loss(
             + weights.beta1 * terms["var_seq"]
             + weights.beta2 * terms["tv_seq"]
         )
+        if out.modes is not None:  # the modes' likelihood of each agent's whole future
+            terms["nll_modes"] = mode_nll(out.modes, seq_target, seq_mask, w)
+            total = total + terms["nll_modes"]
     summary = {name: float(value.detach()) for name, value in terms.items()}
     summary["loss"] = float(total.detach())
     return total, summary

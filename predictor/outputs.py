@@ -6,6 +6,7 @@ that losses, metrics and predictions read the outputs without the network."""
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, replace
 from typing import NamedTuple
 
@@ -13,6 +14,7 @@ import torch
 from torch import Tensor
 
 LSTMState = tuple[Tensor, Tensor]
+LOG_2PI = math.log(2.0 * math.pi)
 
 
 @dataclass
@@ -41,6 +43,14 @@ class Gaussian2D:
         """Marginal standard deviations sqrt(Sigma_kk), shape (..., 2)."""
         second = torch.hypot(self.tril[..., 1], self.tril[..., 2])  # (...)
         return torch.stack([self.tril[..., 0], second], -1)  # (..., 2)
+
+    def log_prob(self, x: Tensor) -> Tensor:
+        """log N(x | mean, L L^T) of positions x (..., 2) [m], elementwise: (...)."""
+        diff = x - self.mean  # (..., 2)
+        z0 = diff[..., 0] / self.tril[..., 0]
+        z1 = (diff[..., 1] - self.tril[..., 1] * z0) / self.tril[..., 2]
+        log_det_half = torch.log(self.tril[..., 0]) + torch.log(self.tril[..., 2])
+        return -0.5 * (z0 * z0 + z1 * z1) - log_det_half - LOG_2PI
 
     def rsample(self) -> Tensor:
         """One reparameterised sample mean + L eps, shape (..., 2)."""
@@ -85,6 +95,7 @@ class Rollout:
     gaussian: Gaussian2D  # (B, T_pred, N, .) predictions of t = T_obs .. T-1
     attention: Tensor  # (B, T_pred, N, N-1) theta^t, t = T_obs-1 .. T-2
     present: Tensor  # (B, N) agents rolled out (present at step T_obs-1)
+    draws: Tensor | None = None  # (B, T_pred, N, 2) a sampled rollout's draws, if kept
 
 
 @dataclass(frozen=True)
@@ -102,6 +113,8 @@ class ModelOutput:
     rollout: Gaussian2D | None = None  # (B, T_pred, N, .) predictions of t = T_obs .. T-1
     rollout_attention: Tensor | None = None  # (B, T_pred, N, N-1) theta^t, t = T_obs-1 .. T-2
     rollout_present: Tensor | None = None  # (B, N) agents rolled out (present at step T_obs-1)
+    # the trajectory modes around the rollout (`ModelConfig.modes` > 1), else None
+    modes: TrajectoryMixture | None = None
 
     def with_rollout(self, rollout: Rollout) -> ModelOutput:
         """A copy holding `rollout`."""
@@ -111,6 +124,56 @@ class ModelOutput:
             rollout_attention=rollout.attention,
             rollout_present=rollout.present,
         )
+
+
+@dataclass(frozen=True)
+class TrajectoryMixture:
+    """A mixture of M Gaussian futures per agent, batch-first: mode m has weight pi_m and, at
+    every predicted step, a 2-D Gaussian; the modes are whole trajectories (one mode is drawn
+    per sampled future, not per step)."""
+
+    log_weights: Tensor  # (B, N, M) log pi_m
+    mean: Tensor  # (B, T_pred, N, M, 2) [m]
+    tril: Tensor  # (B, T_pred, N, M, 3) Cholesky entries (l11, l21, l22)
+
+    def step_log_prob(self, target: Tensor) -> Tensor:
+        """log sum_m pi_m N(target_t | mode m at t): each step's marginal log density of the
+        positions target (B, T_pred, N, 2): (B, T_pred, N)."""
+        per_mode = Gaussian2D(self.mean, self.tril).log_prob(target.unsqueeze(-2))
+        return torch.logsumexp(per_mode + self.log_weights.unsqueeze(1), -1)
+
+    def trajectory_log_prob(self, target: Tensor, mask: Tensor) -> Tensor:
+        """log sum_m pi_m prod_t N(target_t | mode m at t) over the steps where `mask`
+        (B, T_pred, N): each agent's whole-future log density, (B, N) (log 1 = 0 for an agent
+        with no masked step)."""
+        per_mode = Gaussian2D(self.mean, self.tril).log_prob(target.unsqueeze(-2))
+        per_mode = torch.where(mask.unsqueeze(-1), per_mode, torch.zeros_like(per_mode))
+        return torch.logsumexp(per_mode.sum(1) + self.log_weights, -1)
+
+    def sample(self, num_samples: int, generator: torch.Generator | None = None) -> Tensor:
+        """K futures (K, B, T_pred, N, 2) [m]: per future and agent a mode drawn by its weight,
+        and one standard normal draw shared by the mode's steps (mean_t + L_t eps), so each
+        step's samples follow the mode's Gaussian at that step and a future stays smooth."""
+        batch, steps, agents, modes, _ = self.mean.shape
+        probs = self.log_weights.exp().reshape(batch * agents, modes)
+        draw = torch.multinomial(probs, num_samples, replacement=True, generator=generator)
+        draw = draw.view(batch, agents, num_samples).permute(2, 0, 1)  # (K, B, N)
+        index = draw[:, :, None, :, None, None].expand(-1, -1, steps, -1, 1, 2)  # (K,B,T,N,1,2)
+        mean = self.mean.unsqueeze(0).expand(num_samples, -1, -1, -1, -1, -1)
+        tril = self.tril.unsqueeze(0).expand(num_samples, -1, -1, -1, -1, -1)
+        mean = mean.gather(-2, index).squeeze(-2)  # (K, B, T, N, 2)
+        tril = tril.gather(-2, index[..., :1].expand(-1, -1, -1, -1, -1, 3)).squeeze(-2)
+        shape = (num_samples, batch, 1, agents, 2)
+        eps = torch.randn(shape, generator=generator, dtype=mean.dtype, device=mean.device)
+        return sample_with(mean, tril, eps)
+
+
+def sample_with(mean: Tensor, tril: Tensor, eps: Tensor) -> Tensor:
+    """mean + L eps for 2-D Gaussians (mean (..., 2), tril (..., 3)) and standard normal draws
+    eps broadcasting to (..., 2)."""
+    x = mean[..., 0] + tril[..., 0] * eps[..., 0]
+    y = mean[..., 1] + tril[..., 1] * eps[..., 0] + tril[..., 2] * eps[..., 1]
+    return torch.stack([x, y], -1)
 
 
 def edge_index(num_agents: int, device: torch.device | None = None) -> tuple[Tensor, Tensor]:

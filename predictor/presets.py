@@ -85,6 +85,9 @@ PRESETS["crowd"] = (
     },
     {**PRESETS["agent"][1], "batch_size": 16, "epochs": 20},
 )
+# `crowd` with six trajectory modes trained by their likelihood (predictor.model.modes): the
+# field scores best-of-K samples (minADE_K), which one Gaussian per step covers poorly
+PRESETS["crowd_modes"] = ({**PRESETS["crowd"][0], "modes": 6}, PRESETS["crowd"][1])
 DEFAULT_PRESET = "agent"  # the preset make_configs and tools/train.py use unless told
 # the ModelConfig and TrainConfig fields some preset sets: where the presets differ
 PRESET_FIELDS: tuple[tuple[str, ...], tuple[str, ...]] = (
@@ -117,9 +120,10 @@ def make_configs(
             raise ValueError(f"variant {variant!r} has no rollout loss to train rollout_prior")
         # the highway sits in the anchored rollout's prior, so it goes with it
         defaults = {item.name: item.default for item in fields(ModelConfig)}
-        no_highway = {name: defaults[name] for name in HIGHWAY_SWITCHES}
-        preset_model = {**preset_model, "rollout_prior": "previous", **no_highway}
-        model_overrides = {**(model_overrides or {}), **no_highway}
+        # without the rollout loss nothing trains the highway or the trajectory modes either
+        no_rollout = {name: defaults[name] for name in (*HIGHWAY_SWITCHES, "modes")}
+        preset_model = {**preset_model, "rollout_prior": "previous", **no_rollout}
+        model_overrides = {**(model_overrides or {}), **no_rollout}
     model_overrides = {**preset_model, **(model_overrides or {})}
     train_overrides = {**preset_train, **train_overrides}
     if "attention_mode" in model_overrides:

@@ -57,6 +57,8 @@ are masked out of the attention while absent.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 from torch import Tensor, nn
 
@@ -65,6 +67,7 @@ from predictor.model.attention import Presence, build_attention, build_role_bias
 from predictor.model.encoders import build_encoder
 from predictor.model.head import build_head
 from predictor.model.highway_maps import build_highway
+from predictor.model.modes import build_modes
 from predictor.model.pass_inputs import PassInputs, prepare_pass
 from predictor.model.recurrent import EdgeRecurrence, NodeRecurrence
 from predictor.model.state_names import use_checkpoint_names
@@ -100,6 +103,9 @@ class SmoothAttentionPredictor(nn.Module):
         self.attention = build_attention(config)  # learned (F_attn), uniform or oracle
         self.node = NodeRecurrence(config)  # G_pred
         self.head = build_head(config)  # starts at the mean prior, stds init_std_m
+        # trajectory modes (modes > 1) or None; made last, so the other parts draw as before,
+        # and outside PARTS (its tensors are named modes.*)
+        self.modes = build_modes(config)
         use_checkpoint_names(self, PARTS)
 
     def parameter_groups(self) -> list[list[nn.Parameter]]:
@@ -143,7 +149,8 @@ class SmoothAttentionPredictor(nn.Module):
         attention = torch.cat([p.attention for p in parts], 0).transpose(0, 1)  # (B, T-1, N, N-1)
         out = ModelOutput(one_step=one_step, attention=attention)
         if rollout:
-            out = out.with_rollout(self._rollout(steps, observed, sample=sample))
+            out = out.with_rollout(self._rollout(steps, observed, sample))
+            out = self._with_modes(out, steps, observed)
         return out
 
     @torch.no_grad()
@@ -166,7 +173,38 @@ class SmoothAttentionPredictor(nn.Module):
         out = ModelOutput(
             one_step=observed.gaussian.time_first(), attention=observed.attention.transpose(0, 1)
         )
-        return out.with_rollout(self._rollout(steps, observed, sample=False))
+        return self._with_modes(
+            out.with_rollout(self._rollout(steps, observed, sample=False)), steps, observed
+        )
+
+    @torch.no_grad()
+    def sample_rollouts(
+        self,
+        positions: Tensor,
+        valid: Tensor,
+        num_observed: int,
+        num_samples: int,
+        labels: Tensor | None = None,
+        roles: Tensor | None = None,
+    ) -> Tensor:
+        """K futures (K, B, T_pred, N, 2) [m] by the paper's sampled rollout: observe t < T_obs
+        once, then roll out K times, each step feeding back a draw from the predicted Gaussian
+        (torch's global generator: seed it for reproducible draws). Reads what `predict`
+        reads, and nothing after step T_obs-1."""
+        batch = positions.shape[0]
+        steps = self._prepare(positions, valid, num_observed, labels, roles, num_observed)
+        observed = self._block(steps, 0, num_observed, None)
+        tiled = self._prepare(
+            positions.repeat(num_samples, 1, 1, 1),
+            valid.repeat(num_samples, 1, 1),
+            num_observed,
+            None if labels is None else labels.repeat(num_samples, 1, 1),
+            None if roles is None else roles.repeat(num_samples, 1),
+            num_observed,
+        )
+        rollout = self._rollout(tiled, tile_outputs(observed, num_samples), True, keep_draws=True)
+        draws = rollout.draws  # (K*B, T_pred, N, 2)
+        return draws.view(num_samples, batch, *draws.shape[1:])
 
     @torch.no_grad()
     def fit_normalisation(
@@ -276,8 +314,11 @@ class SmoothAttentionPredictor(nn.Module):
             state,
         )
 
-    def _rollout(self, steps: PassInputs, observed: StepOutputs, sample: bool) -> Rollout:
-        """Feed back samples (or means) from step T_obs on."""
+    def _rollout(
+        self, steps: PassInputs, observed: StepOutputs, sample: bool, keep_draws: bool = False
+    ) -> Rollout:
+        """Feed back samples (or means) from step T_obs on; with `keep_draws` (and `sample`)
+        the rollout also keeps the fed-back draws and draws the last step's."""
         t_obs = steps.num_observed
         num_steps = steps.pos.shape[0]
         present = steps.present[t_obs - 1]  # (B, N) agents rolled out
@@ -290,13 +331,14 @@ class SmoothAttentionPredictor(nn.Module):
             # LSTM's last h), so the rollout loss trains every step of the rollout's means
             o_last = state.node[0][0].view(*present.shape, -1)  # (B, N, Hn)
             gaussian = self.head.anchored_step(o_last, prev + anchors[:, :, 0], steps.frame[1])
-        gaussians, attentions = [gaussian], [observed.attention[-1]]
+        gaussians, attentions, draws = [gaussian], [observed.attention[-1]], []
         for t in range(t_obs, num_steps - 1):
             anchor = None  # the anchored prior's velocity at predicted step t + 1 - T_obs
             if anchors is not None:
                 anchor = anchors[:, :, min(t + 1 - t_obs, anchors.shape[2] - 1)]  # (B, N, 2)
             current = gaussian.rsample() if sample else gaussian.mean  # (B, N, 2)
             current = torch.where(present.unsqueeze(-1), current, torch.zeros_like(current))
+            draws.append(current)
             labels = None if steps.labels is None else steps.labels[t : t + 1]  # (1, B, N)
             block = self._run(
                 current[None],
@@ -312,6 +354,8 @@ class SmoothAttentionPredictor(nn.Module):
             gaussians.append(gaussian)
             attentions.append(block.attention[0])
             state, prev = block.state, current
+        if keep_draws and sample:
+            draws.append(gaussian.rsample())
         return Rollout(
             gaussian=Gaussian2D(
                 torch.stack([g.mean for g in gaussians], 1),  # (B, T_pred, N, 2)
@@ -319,7 +363,19 @@ class SmoothAttentionPredictor(nn.Module):
             ),
             attention=torch.stack(attentions, 1),  # (B, T_pred, N, N-1)
             present=present,
+            draws=torch.stack(draws, 1) if keep_draws and sample else None,
         )
+
+    def _with_modes(
+        self, out: ModelOutput, steps: PassInputs, observed: StepOutputs
+    ) -> ModelOutput:
+        """`out` with the trajectory modes (modes > 1) around its rollout."""
+        if self.modes is None:
+            return out
+        present = steps.present[steps.num_observed - 1]  # (B, N)
+        o_last = observed.state.node[0][0].view(*present.shape, -1)  # (B, N, Hn) at T_obs-1
+        mixture = self.modes(o_last, out.rollout, steps.frame[1], self.head.anchor_std)
+        return replace(out, modes=mixture)
 
     def _anchors(self, steps: PassInputs, observed: StepOutputs) -> Tensor | None:
         """The anchored rollout's velocities (B, N, K, 2) [m/step], world axes, of predicted
@@ -374,3 +430,22 @@ class SmoothAttentionPredictor(nn.Module):
         return StepOutputs(
             gaussian, attention, RecurrentState(edges.edge_state, edges.self_state, h_node)
         )
+
+
+def tile_outputs(outputs: StepOutputs, copies: int) -> StepOutputs:
+    """`outputs` of a batch of B scenes as those of the batch repeated `copies` times (scene
+    k B + b is scene b): the batch-major tensors and recurrent states tiled, in the order
+    `prepare_pass` gives the repeated batch's agents and edges (tested)."""
+
+    def tile(state: tuple[Tensor, Tensor] | None) -> tuple[Tensor, Tensor] | None:
+        return None if state is None else tuple(s.repeat(1, copies, 1) for s in state)
+
+    state = outputs.state
+    return StepOutputs(
+        Gaussian2D(
+            outputs.gaussian.mean.repeat(1, copies, 1, 1),
+            outputs.gaussian.tril.repeat(1, copies, 1, 1),
+        ),
+        outputs.attention.repeat(1, copies, 1, 1),
+        RecurrentState(tile(state.edge), tile(state.self_loop), tile(state.node)),
+    )
