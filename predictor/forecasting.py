@@ -5,7 +5,9 @@ accuracy). `predictor.evaluation` runs them as one evaluation of a run or a base
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -24,6 +26,35 @@ class EvaluationError(ValueError):
     """An evaluation cannot be done as asked (empty split, data of another kind); one line."""
 
 
+@dataclass(frozen=True)
+class SampleSettings:
+    """How a predictor's futures are sampled and scored beside its single prediction."""
+
+    # futures per agent: the best of 20 is the ETH/UCY convention since Social-GAN (Gupta et
+    # al., CVPR 2018); 0: no samples (nor minADE_K, minFDE_K, miss rate)
+    k: int = 20
+    miss_threshold_m: float = 2.0  # [m] a best final error above it is a miss (Argoverse's 2 m)
+    seed: int = 0  # of the draws: the same seed and arguments give the same samples
+
+    def __post_init__(self) -> None:
+        if self.k < 0:
+            raise EvaluationError(f"the number of samples must be >= 0, got {self.k}")
+        if not (math.isfinite(self.miss_threshold_m) and self.miss_threshold_m > 0):
+            raise EvaluationError(
+                f"the miss threshold must be a positive distance [m], got {self.miss_threshold_m}"
+            )
+
+
+@dataclass(frozen=True)
+class Forecast:
+    """A predictor's forecasts of a split's scenes, in file order (see `forecast_model`)."""
+
+    pred_mean: np.ndarray  # (n, T_pred, N, 2) [m] the single prediction
+    attention: np.ndarray  # (n, T-1, N, N); NaN for a baseline
+    nll: np.ndarray | None  # (n, T_pred, N) -log density of the truth per step [nats], or None
+    samples: np.ndarray | None  # (n, K, T_pred, N, 2) [m] sampled futures, or None (K = 0)
+
+
 def predict_model(
     model: SmoothAttentionPredictor,
     batch: Batch,
@@ -38,23 +69,77 @@ def predict_model(
     (t < T_obs-1) followed by the fed-back part (t = T_obs-1 .. T-2). `on_batch(scenes)` is
     called after each batch (progress).
     """
+    forecast = forecast_model(model, batch, num_observed, 0, 0, batch_size, on_batch, nll=False)
+    return forecast.pred_mean, forecast.attention
+
+
+def forecast_model(
+    model: SmoothAttentionPredictor,
+    batch: Batch,
+    num_observed: int,
+    num_samples: int = 0,
+    seed: int = 0,
+    batch_size: int = 32,
+    on_batch: Callable[[int], None] | None = None,
+    nll: bool = True,
+) -> Forecast:
+    """`predict_model`'s predictions plus, with `nll`, each predicted step's negative log
+    density of the truth under the model's distribution (its Gaussian, or with trajectory modes
+    their mixture; closed form) and `num_samples` sampled futures per scene: drawn from the
+    modes (`TrajectoryMixture.sample`) or, with one Gaussian, by the paper's sampled rollout
+    (`SmoothAttentionPredictor.sample_rollouts`), seeded by `seed` and the batch.
+
+    Each batch is cut to the agent slots present in it (memory and time follow the agents
+    present, not the file's padded maximum), and its outputs padded back to N.
+    """
     num_agents, num_steps = batch.num_agents, batch.num_steps
-    means = [np.zeros((0, num_steps - num_observed, num_agents, 2), np.float32)]
-    attentions = [np.zeros((0, num_steps - 1, num_agents, num_agents), np.float32)]
+    num_predicted = num_steps - num_observed
+    n = batch.batch_size
+    means = np.zeros((n, num_predicted, num_agents, 2), np.float32)
+    attentions = np.zeros((n, num_steps - 1, num_agents, num_agents), np.float32)
+    nlls = np.full((n, num_predicted, num_agents), np.nan, np.float32) if nll else None
+    samples = np.zeros((n, num_samples, num_predicted, num_agents, 2), np.float32)
     model.eval()
     batch = batch.to(next(model.parameters()).device)  # where the model is (training: its device)
-    for start in range(0, batch.batch_size, batch_size):
-        part = slice(start, start + batch_size)
-        roles = None if batch.roles is None else batch.roles[part]
-        out = model.predict(
-            batch.positions[part], batch.valid[part], num_observed, batch.attention[part], roles
-        )
-        theta = torch.cat([out.attention[:, :-1], out.rollout_attention], 1)  # (b, T-1, N, N-1)
-        means.append(out.rollout.mean.cpu().numpy().astype(np.float32))
-        attentions.append(expand_attention(theta).cpu().numpy().astype(np.float32))
+    for number, start in enumerate(range(0, n, batch_size)):
+        rows = slice(start, min(start + batch_size, n))
+        width = _present_width(batch.valid[rows])
+        positions = batch.positions[rows, :, :width]
+        valid = batch.valid[rows, :, :width]
+        labels = batch.attention[rows, :, :width]
+        roles = None if batch.roles is None else batch.roles[rows, :width]
+        out = model.predict(positions, valid, num_observed, labels, roles)
+        theta = torch.cat([out.attention[:, :-1], out.rollout_attention], 1)  # (b, T-1, w, w-1)
+        means[rows, :, :width] = out.rollout.mean.cpu().numpy()
+        attentions[rows, :, :width, :width] = expand_attention(theta).cpu().numpy()
+        if nll:
+            target = positions[:, num_observed:]
+            if out.modes is not None:
+                log_density = out.modes.step_log_prob(target)
+            else:
+                log_density = out.rollout.log_prob(target)
+            nlls[rows, :, :width] = (-log_density).cpu().numpy()
+        if num_samples:
+            generator = torch.Generator(device=positions.device).manual_seed(seed + number)
+            if out.modes is not None:
+                drawn = out.modes.sample(num_samples, generator)
+            else:
+                with torch.random.fork_rng(devices=[]):
+                    torch.manual_seed(int(torch.randint(2**62, (), generator=generator)))
+                    drawn = model.sample_rollouts(
+                        positions, valid, num_observed, num_samples, labels, roles
+                    )
+            samples[rows, :, :, :width] = drawn.permute(1, 0, 2, 3, 4).cpu().numpy()
         if on_batch is not None:
-            on_batch(len(theta))
-    return np.concatenate(means), np.concatenate(attentions)
+            on_batch(rows.stop - rows.start)
+    return Forecast(means, attentions, nlls, samples if num_samples else None)
+
+
+def _present_width(valid: torch.Tensor) -> int:
+    """1 + the last agent slot present at any step of any scene of `valid` (b, T, N), at
+    least 1."""
+    present = valid.any(dim=1).any(dim=0).nonzero()
+    return int(present.max()) + 1 if len(present) else 1
 
 
 def predict_baseline(

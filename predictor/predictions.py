@@ -19,8 +19,9 @@ import numpy as np
 from trajectory_data.format import DatasetMeta, TrajectorySet, legacy_focal
 
 PREDICTIONS_FORMAT = "smooth-attention-predictions"
-PREDICTIONS_VERSION = 3  # 3 adds `focal`; 2 (read: the first two slots focal) had none
-READABLE_VERSIONS = (2, 3)  # 1: the untagged layout written before the format tag existed
+# 4 adds `samples` (K = 0 when none); 3 adds `focal`; 2 (read: the first two slots focal) had none
+PREDICTIONS_VERSION = 4
+READABLE_VERSIONS = (2, 3, 4)  # 1: the untagged layout written before the format tag existed
 
 _SCALARS = ("predictor", "scenario", "split", "num_observed", "dt")
 _NAMES = ("case_names", "role_names")
@@ -35,6 +36,7 @@ _ARRAYS = {  # field -> (shape in terms of n, T, P = T_pred, N; dtype in the fil
     "attention": (("n", "T-1", "N", "N"), np.float32),
     "attention_label": (("n", "T", "N"), np.int16),
     "interaction": (("n", "T"), np.bool_),
+    "samples": (("n", "K", "P", "N", 2), np.float32),
 }
 
 
@@ -67,8 +69,14 @@ class Predictions:
     attention: np.ndarray  # (n, T-1, N, N) theta[t, i, j], computed at t; NaN if none
     attention_label: np.ndarray  # (n, T, N) ground-truth attended agent, -1 none
     interaction: np.ndarray  # (n, T) inside the interaction period
+    # (n, K, P, N, 2) K sampled futures [m] (predictor.forecasting); K = 0 (None given): none
+    samples: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        if self.samples is None:
+            n, steps, agents = np.shape(self.true_xy)[:3]
+            empty = np.zeros((n, 0, steps - int(self.num_observed), agents, 2), np.float32)
+            object.__setattr__(self, "samples", empty)
         for name in _NAMES:
             object.__setattr__(self, name, tuple(str(s) for s in getattr(self, name)))
         for name, (_, dtype) in _ARRAYS.items():
@@ -82,6 +90,11 @@ class Predictions:
         """Number of scenes."""
         return int(self.true_xy.shape[0])
 
+    @property
+    def num_samples(self) -> int:
+        """K, the sampled futures per scene (0: none)."""
+        return int(self.samples.shape[1])
+
     @classmethod
     def from_split(
         cls,
@@ -91,8 +104,10 @@ class Predictions:
         predictor: str,
         pred_mean: np.ndarray,
         attention: np.ndarray,
+        samples: np.ndarray | None = None,
     ) -> Predictions:
-        """Predictions of every scene of a split (`data`, in file order) of a dataset file."""
+        """Predictions of every scene of a split (`data`, in file order) of a dataset file;
+        `samples` (n, K, P, N, 2), if any."""
         return cls(
             predictor=predictor,
             scenario=meta.scenario,
@@ -111,6 +126,7 @@ class Predictions:
             attention=attention,
             attention_label=data.attention,
             interaction=data.interaction,
+            samples=samples,
         )
 
     def select(self, rows: Sequence[int] | np.ndarray) -> Predictions:
@@ -148,6 +164,7 @@ class Predictions:
             raise PredictionsError("true_xy and pred_mean must be 4-D (n, steps, agents, 2)")
         n, steps, agents = true_xy.shape[:3]
         sizes = {"n": n, "T": steps, "T-1": steps - 1, "P": steps - self.num_observed, "N": agents}
+        sizes["K"] = self.samples.shape[1] if self.samples.ndim == 5 else -1
         if not 1 <= self.num_observed < steps:
             raise PredictionsError(f"num_observed={self.num_observed} does not fit T={steps}")
         for name, (shape, _) in _ARRAYS.items():
@@ -179,6 +196,8 @@ def load_predictions(path: str | os.PathLike) -> Predictions:
     version = _check_version(path, arrays)
     if version == 2 and "true_xy" in arrays and np.ndim(arrays["true_xy"]) == 4:
         arrays["focal"] = legacy_focal(arrays["true_xy"].shape[0], arrays["true_xy"].shape[2])
+    if version < 4:
+        arrays["samples"] = None  # no samples before version 4: K = 0
     missing = sorted((set(_SCALARS) | set(_NAMES) | set(_ARRAYS)) - set(arrays))
     if missing:
         raise PredictionsError(f"{path}: missing arrays {missing}")

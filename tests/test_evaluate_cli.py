@@ -32,6 +32,7 @@ NPZ_KEYS = {
     "attention",
     "attention_label",
     "interaction",
+    "samples",
     "num_observed",
     "dt",
 }

@@ -93,7 +93,7 @@ def test_load_rejects_bad_files(tmp_path: Path) -> None:
             {k: v for k, v in arrays.items() if k not in ("format", "version")},
             "no format tag; files from before version 2",
         ),
-        "v4.npz": ({**arrays, "version": np.int64(4)}, "version 4 is not supported"),
+        "v5.npz": ({**arrays, "version": np.int64(5)}, "version 5 is not supported"),
         "foreign.npz": ({**arrays, "format": np.str_("other")}, "not a smooth-attention-pred"),
     }
     for name, (content, message) in cases.items():
