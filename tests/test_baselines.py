@@ -554,3 +554,35 @@ def test_ridge_samples_follow_its_step_gaussians_and_fallback_agents_are_isotrop
     assert np.all(tril[:, :, 2, 1] == 0) and np.allclose(tril[:, :, 2, 0], tril[:, :, 2, 2])
     with pytest.raises(ValueError, match="fit"):
         RidgeBaseline().sample(test, valid, attention, roles, 2, 0)
+
+
+def test_ridge_sample_set_and_step_gaussians_read_a_split_as_the_arrays():
+    rng = np.random.default_rng(14)
+    states = noisy_futures(rng, 40).astype(np.float32)
+    shape = states.shape[:3]
+    split = TrajectorySet(
+        states=states,
+        actions=np.zeros((*shape, 2), np.float32),
+        valid=np.ones(shape, bool),
+        attention=np.full(shape, -1, np.int16),
+        interaction=np.ones(shape[:2], bool),
+        case=np.zeros(40, np.int8),
+        seed=np.arange(40, dtype=np.int64),
+        roles=np.zeros((40, 3), np.int8),
+    )
+    meta = DatasetMeta(
+        scenario="noisy",
+        dt=DT,
+        num_observed=OBSERVED,
+        num_predicted=STEPS - OBSERVED,
+        case_names=("only",),
+        major_case="only",
+        role_names=("car",),
+        config={},
+    )
+    model = RidgeBaseline(RidgeConfig(history_steps=4)).fit_set(split, meta)
+    xyh = states[..., :3]  # x, y, heading: what ridge_states picks
+    arrays = (xyh, split.valid, split.attention, split.roles)
+    np.testing.assert_array_equal(model.sample_set(split, meta, 5, 2), model.sample(*arrays, 5, 2))
+    for got, want in zip(model.step_gaussians(split, meta), model.step_gaussians_of(*arrays)):
+        np.testing.assert_array_equal(got, want)
