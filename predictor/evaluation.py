@@ -30,7 +30,9 @@ from predictor.checkpoints import CHECKPOINTS, CheckpointError, load_model
 from predictor.diagnostics import counterfactual_shift, error_curves, one_step_errors
 from predictor.forecasting import (
     EvaluationError,
+    SampleSettings,
     fit_baseline,
+    forecast_model,
     predict_model,
     score,
 )
@@ -116,6 +118,12 @@ class Evaluation:
     diagnostics: dict[str, Any] | None = None  # error curves, one-step error, counterfactual
     # (trained, evaluated) scenario names of a run evaluated on another scenario's data
     scenario_mismatch: tuple[str, str] | None = None
+    sampling: dict[str, Any] | None = None  # K, seed, miss threshold and how it samples
+
+    @property
+    def words(self) -> Wording:
+        """The words of this data's agents and scenes (`Wording.of`)."""
+        return Wording.of(self.meta)
 
     @property
     def split(self) -> str:
@@ -150,12 +158,15 @@ class Evaluation:
             info["scenario_mismatch"] = {"trained_on": trained, "evaluated_on": evaluated}
         if self.baseline is not None:
             info["baseline_fit"] = self.baseline
+        if self.sampling is not None:
+            info["sampling"] = self.sampling
         extra = {} if self.diagnostics is None else {"diagnostics": self.diagnostics}
         return json_safe({**info, **self.scores, **extra})
 
     def headline(self) -> str:
-        """One line with the main-agent ADE/FDE and the attention accuracy."""
-        return headline(self.scores)
+        """One line with the headline agents' ADE/FDE (and best-of-K scores, with samples) and
+        the attention accuracy."""
+        return headline(self.scores, self.words.agents)
 
     def mismatch_note(self) -> str | None:
         """One line naming the scenario the run was trained on and the one evaluated, when they
@@ -184,6 +195,7 @@ def evaluate_run(
     batch_size: int = 32,
     progress: bool = False,
     allow_scenario_mismatch: bool = False,
+    sampling: SampleSettings | None = None,
 ) -> Evaluation:
     """Score checkpoint `checkpoint` ("best" or "last") of a run on a split of `data_path`
     (with `progress`, a bar on stderr through the predictions and diagnostics).
@@ -225,14 +237,16 @@ def evaluate_run(
             f"{', '.join(dataset.meta.role_names)}"
         )
     variant = str(stored["train_config"]["variant"])
+    sampling = sampling or SampleSettings()
     passes = 2 + _counterfactual_passes(dataset.data.focal)
     stages = _Stages(variant, len(dataset), passes, progress)
     try:
-        stages.stage("predictions")
-        pred_mean, attention = predict_model(
-            model, dataset.all(), dataset.meta.num_observed, batch_size, stages.advance
-        )
+        stages.stage("predictions" + (f" and {sampling.k} samples" if sampling.k else ""))
         batch, num_observed = dataset.all(), dataset.meta.num_observed
+        forecast = forecast_model(
+            model, batch, num_observed, sampling.k, sampling.seed, batch_size, stages.advance
+        )
+        pred_mean, attention = forecast.pred_mean, forecast.attention
 
         def predict(states: np.ndarray, valid: np.ndarray) -> np.ndarray:
             moved = replace(batch, states=torch.from_numpy(states), valid=torch.from_numpy(valid))
@@ -251,8 +265,16 @@ def evaluate_run(
         epoch=int(stored["epoch"]),
         train_data=str(stored["data"]["path"]),
     )
+    method = "modes" if model.modes is not None else "sampled rollout (the paper's)"
     evaluation = _evaluation(
-        dataset, variant, pred_mean, attention, source, diagnostics=diagnostics
+        dataset,
+        variant,
+        pred_mean,
+        attention,
+        source,
+        diagnostics=diagnostics,
+        distribution=(forecast.samples, forecast.nll),
+        sampling=_sampling_record(sampling, f"{method}; NLL closed form"),
     )
     return replace(evaluation, scenario_mismatch=mismatch)
 
@@ -263,6 +285,7 @@ def evaluate_baseline(
     split: str = "test",
     fit_split: str = "train",
     progress: bool = False,
+    sampling: SampleSettings | None = None,
 ) -> Evaluation:
     """Score the baseline `name` (one of predictor.baselines.BASELINES) on a split; a ridge
     baseline is first fitted on `fit_split` of the same file (with `progress`, a bar on stderr
@@ -275,16 +298,23 @@ def evaluate_baseline(
         raise EvaluationError(f"unknown baseline {name!r}; choose from {', '.join(BASELINES)}")
     dataset = _load_split(data_path, split)
     data = dataset.data
-    stages = _Stages(name, data.n, 2 + _counterfactual_passes(data.focal), progress)
+    sampling = sampling or SampleSettings()
+    stages = _Stages(name, data.n, 3 + _counterfactual_passes(data.focal), progress)
     try:
         fit = None
         if name != "const_vel":
             stages.stage(f"fitting on the {fit_split} split")
             fit = dataset.data if fit_split == split else _load_split(data_path, fit_split).data
-        predict_data, details = fit_baseline(name, dataset.meta, fit)
+        fitted = fit_baseline(name, dataset.meta, fit)
+        predict_data, details = fitted.predict, fitted.details
         stages.advance(data.n)
         stages.stage("predictions")
         pred_mean = predict_data(data)
+        stages.advance(data.n)
+        distribution = (None, None)
+        if sampling.k:
+            stages.stage(f"{sampling.k} samples")
+            distribution = fitted.distribution(data, sampling.k, sampling.seed)
         stages.advance(data.n)
 
         def predict(states: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -300,7 +330,17 @@ def evaluate_baseline(
     attention = np.full(shape, np.nan, dtype=np.float32)
     if details:
         details = {"fit_split": fit_split, **details}
-    return _evaluation(dataset, name, pred_mean, attention, None, details, diagnostics)
+    return _evaluation(
+        dataset,
+        name,
+        pred_mean,
+        attention,
+        None,
+        details,
+        diagnostics,
+        distribution,
+        _sampling_record(sampling, fitted.sampler),
+    )
 
 
 class ScenarioMismatchError(EvaluationError):
@@ -374,20 +414,56 @@ def _evaluation(
     source: RunSource | None,
     baseline: dict[str, Any] | None = None,
     diagnostics: dict[str, Any] | None = None,
+    distribution: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+    sampling: dict[str, Any] | None = None,
 ) -> Evaluation:
+    samples, nll = distribution
     predictions = Predictions.from_split(
-        dataset.data, dataset.meta, dataset.split, predictor, pred_mean, attention
+        dataset.data, dataset.meta, dataset.split, predictor, pred_mean, attention, samples
+    )
+    threshold = (
+        SampleSettings().miss_threshold_m if sampling is None else sampling["miss_threshold_m"]
     )
     return Evaluation(
         predictor=predictor,
         data=str(Path(dataset.path).resolve()),
         meta=dataset.meta,
-        scores=score(predictions),
+        scores=score(predictions, nll, threshold),
         predictions=predictions,
         source=source,
         baseline=baseline or None,
         diagnostics=diagnostics,
+        sampling=sampling,
     )
+
+
+def _sampling_record(sampling: SampleSettings, method: str) -> dict[str, Any] | None:
+    """eval.json's description of the samples behind min_ade, min_fde, miss_rate (None: K=0)."""
+    if not sampling.k:
+        return None
+    return {
+        "k": sampling.k,
+        "seed": sampling.seed,
+        "miss_threshold_m": sampling.miss_threshold_m,
+        "method": method,
+    }
+
+
+@dataclass(frozen=True)
+class Wording:
+    """The words output uses for a file's agents and scenes: simulated scenes record attention
+    labels and score their two main cars; imported recordings are cut into windows that score
+    their focal agents (pedestrians, vehicles)."""
+
+    agents: str  # the scored agents, e.g. "main agents"
+    scenes: str  # e.g. "scenes"
+    labelled: str  # the agent an attending agent's label names, e.g. "labelled car"
+
+    @staticmethod
+    def of(meta: DatasetMeta) -> Wording:
+        if meta.has("attention"):
+            return Wording("main agents", "scenes", "labelled car")
+        return Wording("focal agents", "windows", "labelled agent")
 
 
 def _common_diagnostics(dataset: TrajectoryDataset, pred_mean: np.ndarray, predict) -> dict:

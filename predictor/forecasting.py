@@ -13,11 +13,18 @@ from typing import Any
 import numpy as np
 import torch
 
-from predictor.baselines import BASELINES, RidgeBaseline, RidgeConfig, constant_velocity
+from predictor.baselines import (
+    BASELINES,
+    RidgeBaseline,
+    RidgeConfig,
+    constant_velocity,
+    constant_velocity_samples,
+)
 from predictor.metrics import attention_accuracy, displacement_metrics, prediction_mask
 from predictor.model import SmoothAttentionPredictor
 from predictor.outputs import expand_attention
 from predictor.predictions import Predictions
+from predictor.probabilistic import gaussian_nll, kde_nll, sample_metrics
 from trajectory_data.format import DatasetMeta, TrajectorySet
 from trajectory_data.torch_dataset import Batch
 
@@ -148,23 +155,44 @@ def predict_baseline(
     """(pred_mean, attention, details) of baseline `name` on `data`, shaped as `predict_model`'s
     outputs; the attention is NaN. A ridge baseline is fitted on `fit` first (required for them);
     `details` describes the fit (empty for const_vel)."""
-    predict, details = fit_baseline(name, meta, fit)
+    fitted = fit_baseline(name, meta, fit)
     shape = (data.n, data.num_steps - 1, data.num_agents, data.num_agents)
-    return predict(data), np.full(shape, np.nan, dtype=np.float32), details
+    return fitted.predict(data), np.full(shape, np.nan, dtype=np.float32), fitted.details
 
 
-def fit_baseline(
-    name: str, meta: DatasetMeta, fit: TrajectorySet | None = None
-) -> tuple[Callable[[TrajectorySet], np.ndarray], dict[str, Any]]:
-    """(predict, details): `predict(data)` gives baseline `name`'s predicted means
-    (n, T_pred, N, 2) [m] on any scenes of `meta`'s kind; a ridge baseline is fitted on `fit`
-    once, here (EvaluationError if it cannot be). `details` describes the fit."""
+@dataclass(frozen=True)
+class FittedBaseline:
+    """A baseline ready to forecast any scenes of the kind it was fitted for."""
+
+    predict: Callable[[TrajectorySet], np.ndarray]  # scenes -> means (n, T_pred, N, 2) [m]
+    # (scenes, K, seed) -> (samples (n, K, T_pred, N, 2) [m], per-step NLL (n, T_pred, N))
+    distribution: Callable[[TrajectorySet, int, int], tuple[np.ndarray, np.ndarray]]
+    details: dict[str, Any]  # the fit (empty for const_vel)
+    sampler: str  # how it samples (eval.json)
+
+
+def fit_baseline(name: str, meta: DatasetMeta, fit: TrajectorySet | None = None) -> FittedBaseline:
+    """Baseline `name` for scenes of `meta`'s kind; a ridge baseline is fitted on `fit` once,
+    here (EvaluationError if it cannot be). Its samples: constant velocity's are CVM-S's
+    (heading noise, Schöller et al. 2020; NLL by kernel density, as Trajectron++ scores
+    samplers); a ridge's are its mean plus its training residuals' Gaussian (closed-form NLL)."""
     if name not in BASELINES:
         raise EvaluationError(f"unknown baseline {name!r}; choose from {', '.join(BASELINES)}")
+    num_observed = meta.num_observed
     if name == "const_vel":
-        return lambda data: constant_velocity(
-            data.states[..., :2], data.valid, meta.num_observed
-        ), {}
+
+        def cv_distribution(data: TrajectorySet, k: int, seed: int):
+            xy = data.states[..., :2]
+            samples = constant_velocity_samples(xy, data.valid, num_observed, k, seed)
+            mask = prediction_mask(data.valid, num_observed)
+            return samples, kde_nll(samples, xy[:, num_observed:], mask)
+
+        return FittedBaseline(
+            lambda data: constant_velocity(data.states[..., :2], data.valid, num_observed),
+            cv_distribution,
+            {},
+            "CVM-S: constant velocity, heading rotated by N(0, 25 deg) per sample; NLL by KDE",
+        )
     if fit is None or fit.n == 0:
         raise EvaluationError(f"the {name} baseline needs training scenes to fit on")
     config = RidgeConfig.named(name)
@@ -181,22 +209,46 @@ def fit_baseline(
         "history_steps": ridge.history,
         "alpha": {meta.role_names[role]: alpha for role, alpha in sorted(ridge.alpha.items())},
     }
-    return lambda data: ridge.predict_set(data, meta), details
 
+    def ridge_distribution(data: TrajectorySet, k: int, seed: int):
+        mean, tril = ridge.step_gaussians(data, meta)
+        nll = gaussian_nll(data.states[:, num_observed:, :, :2], mean, tril)
+        return ridge.sample_set(data, meta, k, seed), nll
 
-def score(predictions: Predictions) -> dict:
-    """ADE/FDE per agent group and case, and attention accuracy (see `predictor.metrics`):
-    {"main_agents": ..., "all_agents": ..., "attention_accuracy": ...}."""
-    p = predictions
-    result = displacement_metrics(
-        p.pred_mean,
-        p.true_xy[:, p.num_observed :],
-        prediction_mask(p.valid, p.num_observed),
-        p.case,
-        p.case_names,
-        p.focal,
+    return FittedBaseline(
+        lambda data: ridge.predict_set(data, meta),
+        ridge_distribution,
+        details,
+        "ridge mean plus its training residuals' Gaussian over the whole future; NLL closed form",
     )
+
+
+def score(
+    predictions: Predictions, nll: np.ndarray | None = None, miss_threshold_m: float = 2.0
+) -> dict:
+    """ADE/FDE per agent group and case, and attention accuracy (see `predictor.metrics`):
+    {"main_agents": ..., "all_agents": ..., "attention_accuracy": ...}; with samples (K > 0)
+    each group's entries also hold min_ade, min_fde, miss_rate, nll and k
+    (`predictor.probabilistic`), nll from the per-step NLL `nll` (n, T_pred, N) if given."""
+    p = predictions
+    true, mask = p.true_xy[:, p.num_observed :], prediction_mask(p.valid, p.num_observed)
+    result = displacement_metrics(p.pred_mean, true, mask, p.case, p.case_names, p.focal)
+    if p.num_samples:
+        sampled = sample_metrics(
+            p.samples, true, mask, p.case, p.case_names, p.focal, miss_threshold_m, nll
+        )
+        for group, parts in sampled.items():
+            for entry, target in _entries(result[group]):
+                source = parts["overall"] if entry == "overall" else parts["cases"][entry]
+                target.update({key: source[key] for key in SAMPLE_KEYS})
     result["attention_accuracy"] = attention_accuracy(
         p.attention, p.attention_label, p.interaction, p.valid, p.num_observed, p.case, p.case_names
     )
     return result
+
+
+SAMPLE_KEYS = ("min_ade", "min_fde", "miss_rate", "nll", "k")  # score's keys from the samples
+
+
+def _entries(group: dict) -> list[tuple[str, dict]]:
+    return [("overall", group["overall"]), *group["cases"].items()]

@@ -202,15 +202,24 @@ def attention_accuracy(
     }
 
 
-def headline(metrics: dict) -> str:
-    """One-line text of the headline numbers of an evaluation result."""
+def headline(metrics: dict, agents: str = "main agents") -> str:
+    """One-line text of the headline numbers of an evaluation result; `agents` names the
+    headline group (the data's focal agents)."""
     main, every = metrics["main_agents"]["overall"], metrics["all_agents"]["overall"]
     accuracy = metrics["attention_accuracy"]["overall"]["accuracy"]
 
     def fmt(value: float | None, spec: str = ".3f") -> str:
         return "n/a" if value is None or math.isnan(value) else format(value, spec)
 
+    sampled = ""
+    if main.get("k"):
+        sampled = (
+            f"; best of {main['k']}: minADE {fmt(main['min_ade'])} m minFDE "
+            f"{fmt(main['min_fde'])} m, miss rate {fmt(main['miss_rate'])}, NLL "
+            f"{fmt(main['nll'], '.2f')}"
+        )
     return (
-        f"main agents ADE {fmt(main['ade'])} m FDE {fmt(main['fde'])} m; all agents ADE "
-        f"{fmt(every['ade'])} m FDE {fmt(every['fde'])} m; attention accuracy {fmt(accuracy)}"
+        f"{agents} ADE {fmt(main['ade'])} m FDE {fmt(main['fde'])} m; all agents ADE "
+        f"{fmt(every['ade'])} m FDE {fmt(every['fde'])} m{sampled}; attention accuracy "
+        f"{fmt(accuracy)}"
     )

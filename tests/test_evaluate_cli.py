@@ -381,4 +381,5 @@ def test_evaluation_library_matches_the_tool_and_an_independent_ade(smoke, tmp_p
         "all_agents",
         "attention_accuracy",
         "diagnostics",
+        "sampling",
     }

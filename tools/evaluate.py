@@ -34,6 +34,7 @@ to write beside it. Exit status (docs/CLI.md): 0 evaluated; 2 usage or input err
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -50,8 +51,14 @@ from pipeline.cli import (
 )
 from predictor.baselines import BASELINES
 from predictor.checkpoints import CHECKPOINTS, CheckpointError
-from predictor.evaluation import Evaluation, ScenarioMismatchError, evaluate_baseline, evaluate_run
-from predictor.forecasting import EvaluationError
+from predictor.evaluation import (
+    Evaluation,
+    ScenarioMismatchError,
+    Wording,
+    evaluate_baseline,
+    evaluate_run,
+)
+from predictor.forecasting import EvaluationError, SampleSettings
 from trajectory_data.format import FormatError
 
 
@@ -93,6 +100,28 @@ def parse_args(argv: list[str] | None = None):
         help="with --run: evaluate on data of another scenario than the run was trained on, "
         "when dt, the horizons and the agent count match (the output names both scenarios)",
     )
+    defaults = SampleSettings()
+    parser.add_argument(
+        "--samples",
+        type=int,
+        default=defaults.k,
+        metavar="K",
+        help=f"sampled futures per agent for minADE_K, minFDE_K and the miss rate (default "
+        f"{defaults.k}, the ETH/UCY convention; 0: none)",
+    )
+    parser.add_argument(
+        "--miss-threshold",
+        type=float,
+        default=defaults.miss_threshold_m,
+        metavar="M",
+        help=f"[m] a best final error above it is a miss (default {defaults.miss_threshold_m})",
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=defaults.seed,
+        help=f"seed of the samples (default {defaults.seed})",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--batch-size", type=int, default=32, help="scenes per forward pass")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
@@ -106,6 +135,10 @@ def check_args(args) -> tuple[Path | None, Path | None]:
         fail("--allow-scenario-mismatch applies to --run (a baseline fits on the file itself)")
     if args.batch_size < 1 or args.threads < 1:
         fail("--batch-size and --threads must be at least 1")
+    if args.samples < 0 or args.seed < 0:
+        fail("--samples and --seed must be at least 0")
+    if not (math.isfinite(args.miss_threshold) and args.miss_threshold > 0):
+        fail(f"--miss-threshold must be a positive distance in metres, got {args.miss_threshold}")
     out = args.out
     if args.run is not None:
         if not Path(args.run).is_dir():
@@ -122,31 +155,39 @@ def check_args(args) -> tuple[Path | None, Path | None]:
     return json_out, npz_out
 
 
-def format_table(result: dict, case_names: tuple[str, ...]) -> str:
-    """Plain-text table: one row per case and overall."""
-    header = (
-        f"{'case':<12}{'ADE main':>10}{'FDE main':>10}{'ADE all':>10}{'FDE all':>10}"
-        f"{'attn acc':>10}{'scenes':>8}"
-    )
+def format_table(result: dict, case_names: tuple[str, ...], words: Wording | None = None) -> str:
+    """Plain-text table: one row per case and overall; with samples, the headline agents'
+    best-of-K columns too."""
+    who = "main" if words is None or words.agents == "main agents" else "focal"
+    scenes = "scenes" if words is None else words.scenes
+    k = result["main_agents"]["overall"].get("k")
+    header = f"{'case':<12}{'ADE ' + who:>11}{'FDE ' + who:>11}{'ADE all':>10}{'FDE all':>10}"
+    if k:
+        header += f"{f'minADE{k}':>10}{f'minFDE{k}':>10}{'miss':>8}{'NLL':>8}"
+    header += f"{'attn acc':>10}{scenes:>9}"
     rows = [header, "-" * len(header)]
 
-    def cell(value: float | None) -> str:
-        return f"{'n/a':>10}" if value is None else f"{value:>10.3f}"
+    def cell(value: float | None, width: int = 10, spec: str = ".3f") -> str:
+        return f"{'n/a':>{width}}" if value is None else f"{value:>{width}{spec}}"
 
     for name in (*case_names, "overall"):
         main, every = _row(result["main_agents"], name), _row(result["all_agents"], name)
         accuracy = _row(result["attention_accuracy"], name)["accuracy"]
-        rows.append(
-            f"{name:<12}{cell(main['ade'])}{cell(main['fde'])}{cell(every['ade'])}"
-            f"{cell(every['fde'])}{cell(accuracy)}{every['scenes']:>8}"
-        )
+        line = f"{name:<12}{cell(main['ade'], 11)}{cell(main['fde'], 11)}"
+        line += f"{cell(every['ade'])}{cell(every['fde'])}"
+        if k:
+            line += f"{cell(main['min_ade'])}{cell(main['min_fde'])}"
+            line += f"{cell(main['miss_rate'], 8)}{cell(main['nll'], 8, '.2f')}"
+        rows.append(f"{line}{cell(accuracy)}{every['scenes']:>9}")
     return "\n".join(rows)
 
 
-def format_diagnostics(diagnostics: dict | None) -> str:
+def format_diagnostics(diagnostics: dict | None, words: Wording | None = None) -> str:
     """Lines on why a predictor errs: error curve, one-step error, counterfactual shift."""
     if not diagnostics:
         return ""
+    words = words or Wording("main agents", "scenes", "labelled car")
+    agent = words.agents[:-1]  # "main agent", "focal agent"
 
     def metres(value: float | None, unit: float = 1.0, digits: int = 3) -> str:
         return "n/a" if value is None else f"{value * unit:.{digits}f}"
@@ -154,21 +195,25 @@ def format_diagnostics(diagnostics: dict | None) -> str:
     curve = diagnostics["error_curve"]["main_agents"]
     marks = sorted({0, len(curve) // 3, 2 * len(curve) // 3, len(curve) - 1})
     lines = [
-        "main-agent error [m] at predicted steps "
+        f"{agent} error [m] at predicted steps "
         + ", ".join(f"{k + 1}: {metres(curve[k])}" for k in marks)
     ]
     if "one_step" in diagnostics:
         one = diagnostics["one_step"]["main_agents"]
         lines.append(
-            f"one-step error (teacher forced, main agents): {metres(one['model_m'], 1000, 2)} mm "
-            f"vs constant velocity {metres(one['const_vel_m'], 1000, 2)} mm"
+            f"one-step error (teacher forced, {words.agents}): "
+            f"{metres(one['model_m'], 1000, 2)} mm vs constant velocity "
+            f"{metres(one['const_vel_m'], 1000, 2)} mm"
         )
     cf = diagnostics["counterfactual"]
-    lines.append(
-        f"counterfactual shift of a main agent's prediction: labelled car's history swapped "
-        f"{metres(cf['labelled_m'])} m, a distractor's {metres(cf['distractor_m'])} m "
-        f"({cf['pairs']} pairs)"
-    )
+    if cf["pairs"]:
+        lines.append(
+            f"counterfactual shift of a {agent}'s prediction: {words.labelled}'s history "
+            f"swapped {metres(cf['labelled_m'])} m, a distractor's {metres(cf['distractor_m'])} "
+            f"m ({cf['pairs']} pairs)"
+        )
+    else:
+        lines.append("counterfactual shift: n/a (the data names no attended agents)")
     return "\n".join(lines)
 
 
@@ -181,8 +226,11 @@ def evaluate(args) -> Evaluation:
     Ctrl-C."""
     progress = not args.no_progress
     try:
+        sampling = SampleSettings(args.samples, args.miss_threshold, args.seed)
         if args.baseline:
-            return evaluate_baseline(args.baseline, args.data, args.split, progress=progress)
+            return evaluate_baseline(
+                args.baseline, args.data, args.split, progress=progress, sampling=sampling
+            )
         return evaluate_run(
             args.run,
             args.data,
@@ -191,6 +239,7 @@ def evaluate(args) -> Evaluation:
             args.batch_size,
             progress=progress,
             allow_scenario_mismatch=args.allow_scenario_mismatch,
+            sampling=sampling,
         )
     except KeyboardInterrupt:
         fail("interrupted; nothing was written", code=INTERRUPTED)
@@ -213,8 +262,8 @@ def main(argv: list[str] | None = None) -> None:
     note = evaluation.mismatch_note()
     if note is not None:
         print(note)
-    print(format_table(result, evaluation.meta.case_names))
-    print(format_diagnostics(result.get("diagnostics")))
+    print(format_table(result, evaluation.meta.case_names, evaluation.words))
+    print(format_diagnostics(result.get("diagnostics"), evaluation.words))
     if npz_out is not None:
         with writing(npz_out) as temp:
             evaluation.save_predictions(temp)
@@ -227,7 +276,8 @@ def main(argv: list[str] | None = None) -> None:
         trained, evaluated = evaluation.scenario_mismatch
         other = f" of {evaluated} (trained on {trained})"
     print(
-        f"{evaluation.predictor} on {evaluation.scenes} {args.split} scenes{other} in "
+        f"{evaluation.predictor} on {evaluation.scenes} {args.split} {evaluation.words.scenes}"
+        f"{other} in "
         f"{time.perf_counter() - started:.1f} s: {evaluation.headline()} ({written})"
     )
 
