@@ -59,11 +59,72 @@ def run_importer(*args: object) -> subprocess.CompletedProcess:
     return run_tool("import_data.py", *args)
 
 
+# make_scene's counts are under the rule before Social-GAN's: any focal pedestrian keeps a window
+ANY = ("--min-focal-agents", "1")
+
+
+def make_pairs_scene(root: Path) -> None:
+    """Scene `zara1` for the two-focal-pedestrian rule (frames 100 + 10 g, grid steps g).
+    train/a.txt: ped 1 at g = 0..24, ped 2 at g = 3..24, ped 3 at g = 0..19. Windows start at
+    g = 0..5; focal there: {1, 3}, {1}, {1}, {1, 2}, {1, 2}, {1, 2}. Two or more: starts 0, 3, 4,
+    5 (4 windows); at least one: all 6 (starts 1 and 2 hold peds 2 and 3 in part, not focal).
+    val/b.txt: peds 1, 2 at g = 0..19: 1 window with 2 focal (either rule).
+    test/c.txt: peds 1, 2, 3 at g = 0..20 (windows at 0 and 1, 3 focal each), ped 4 alone at
+    g = 30..49 (1 window, 1 focal): 2 windows, or 3 with the old rule."""
+    scene = root / "zara1"
+    write_file(
+        scene / "train" / "a.txt", rows(1, range(25)) + rows(2, range(3, 25)) + rows(3, range(20))
+    )
+    write_file(scene / "val" / "b.txt", rows(1, range(20)) + rows(2, range(20)))
+    table = [r for ped in (1, 2, 3) for r in rows(ped, range(21))] + rows(4, range(30, 50))
+    write_file(scene / "test" / "c.txt", table)
+
+
+@pytest.mark.parametrize(
+    ("flags", "rule", "counts", "starts"),
+    [
+        ((), 2, [4, 1, 2], [0, 3, 4, 5]),
+        (("--min-focal-agents", "2"), 2, [4, 1, 2], [0, 3, 4, 5]),
+        (ANY, 1, [6, 1, 3], [0, 1, 2, 3, 4, 5]),
+    ],
+)
+def test_windows_need_two_focal_pedestrians_by_default(tmp_path, flags, rule, counts, starts):
+    make_pairs_scene(tmp_path / "raw")
+    out = tmp_path / "out"
+    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "zara1", *flags)
+    assert result.returncode == 0, result.stderr
+    meta, splits = read_dataset(out / "eth_ucy_zara1.h5")
+    assert [splits[s].n for s in SPLITS] == counts
+    assert meta.config["settings"]["min_focal_agents"] == rule
+    train = splits["train"]
+    # slot 0 is ped 1, present throughout: its first x (1 + 0.1 g) gives the window's start g
+    first_x = train.states[:, 0, 0, 0]
+    assert np.round((first_x - 1) / 0.1).astype(int).tolist() == starts
+    focal_sets = {0: [1, 3], 1: [1], 2: [1], 3: [1, 2], 4: [1, 2], 5: [1, 2]}
+    for w, start in enumerate(starts):  # slots: peds 1, 2, 3 in id order
+        assert np.flatnonzero(train.focal[w]).tolist() == [p - 1 for p in focal_sets[start]]
+    assert (splits["val"].focal.sum(axis=1) == 2).all()
+    assert splits["test"].focal.sum(axis=1).tolist() == [3, 3, 1][: counts[2]]
+    windows = {s["file"]: s["windows"] for s in meta.config["sources"]["test"]}
+    assert windows == {"zara1/test/c.txt": counts[2]}
+
+
+def test_min_focal_agents_below_one_is_refused(tmp_path: Path) -> None:
+    make_pairs_scene(tmp_path / "raw")
+    out = tmp_path / "out"
+    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--min-focal-agents", "0")
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        "error: EthUcyConfig.min_focal_agents is out of range: 0"
+    ]
+    assert not out.exists()
+
+
 def test_windows_counted_by_hand_read_back(tmp_path: Path) -> None:
     make_scene(tmp_path / "raw")
     out = tmp_path / "out"
     out.mkdir()
-    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
+    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", *ANY)
     assert result.returncode == 0, result.stderr
     assert result.stderr == "writing 1 file(s)\n"  # no silent phase; a quick read shows no bar
     path = out / "eth_ucy_hotel.h5"
@@ -102,7 +163,8 @@ def test_windows_counted_by_hand_read_back(tmp_path: Path) -> None:
 
 def test_constant_velocity_equals_an_independent_computation(tmp_path: Path) -> None:
     make_scene(tmp_path / "raw")
-    paths = import_eth_ucy(tmp_path / "raw", tmp_path, EthUcyConfig(scenes=("hotel",)), False)
+    config = EthUcyConfig(scenes=("hotel",), min_focal_agents=1)
+    paths = import_eth_ucy(tmp_path / "raw", tmp_path, config, False)
     scores = evaluate_baseline("const_vel", paths[0], "test").scores["main_agents"]["overall"]
     errors = []  # test/d.txt: ped 1 at g = 0..20, windows start at g = 0 and 1
     for start in (0, 1):
@@ -148,20 +210,22 @@ def test_refuses_to_overwrite_and_writes_all_scenes_or_none(tmp_path: Path) -> N
     make_scene(tmp_path / "raw")
     out = tmp_path / "out"
     out.mkdir()
-    first = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
+    first = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", *ANY)
     assert first.returncode == 0
     before = (out / "eth_ucy_hotel.h5").read_bytes()
-    again = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
+    again = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", *ANY)
     assert again.returncode == 2 and "already exists; pass --overwrite" in again.stderr
     assert (out / "eth_ucy_hotel.h5").read_bytes() == before
     forced = run_importer(
-        "eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", "--overwrite"
+        "eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", "--overwrite", *ANY
     )
     assert forced.returncode == 0
     # zara1 has no folder: the error names it and hotel is not written either
     fresh = tmp_path / "fresh"
     fresh.mkdir()
-    both = run_importer("eth-ucy", tmp_path / "raw", "--out", fresh, "--scenes", "hotel", "zara1")
+    both = run_importer(
+        "eth-ucy", tmp_path / "raw", "--out", fresh, "--scenes", "hotel", "zara1", *ANY
+    )
     assert both.returncode == 2 and "zara1/train: missing folder" in both.stderr
     assert list(fresh.iterdir()) == []
 
@@ -184,7 +248,8 @@ def test_single_pedestrian_windows_train_and_evaluate(tmp_path: Path) -> None:
     raw = tmp_path / "raw"
     for split, ped in (("train", 1), ("val", 2), ("test", 3)):
         write_file(raw / "hotel" / split / "a.txt", rows(ped, range(22)))
-    (path,) = import_eth_ucy(raw, tmp_path, EthUcyConfig(scenes=("hotel",)), False)
+    config = EthUcyConfig(scenes=("hotel",), min_focal_agents=1)
+    (path,) = import_eth_ucy(raw, tmp_path, config, False)
     assert read_dataset(path)[1]["train"].num_agents == 1
     dataset = TrajectoryDataset(path, "train")
     assert dataset.all().num_agents == 2 and not dataset.all().valid[:, :, 1].any()
@@ -336,7 +401,7 @@ def test_interaction_reads_a_csv_with_a_byte_order_mark(tmp_path: Path) -> None:
 def test_missing_output_folders_are_created(tmp_path: Path) -> None:
     make_scene(tmp_path / "raw")
     out = tmp_path / "new" / "data"
-    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
+    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", *ANY)
     assert result.returncode == 0, result.stderr
     assert sorted(p.name for p in out.iterdir()) == ["eth_ucy_hotel.h5"]
     write_interaction(tmp_path / "csv")

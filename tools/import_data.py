@@ -7,7 +7,8 @@
 eth-ucy: ROOT holds the scenes eth, hotel, univ, zara1, zara2, each with train/, val/ and test/
 folders of `frame ped x y` text files (the standard leave-one-out layout); writes
 OUT/eth_ucy_<scene>.h5 per scene: 8 observed + 12 predicted steps of 0.4 s, windows of 20 frames
-with stride 1, the pedestrians present in all 20 frames focal (scored). See
+with stride 1, the pedestrians present in all 20 frames focal (scored), a window kept when it has
+at least --min-focal-agents of them (default 2, Social-GAN's windows). See
 trajectory_data/importers/eth_ucy.py.
 
 interaction: INPUT files or folders (searched for *.csv) of INTERACTION track CSVs (columns
@@ -56,6 +57,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default=defaults.stride,
         help=f"steps between window starts (default {defaults.stride})",
     )
+    eth.add_argument(
+        "--min-focal-agents",
+        type=int,
+        default=defaults.min_focal_agents,
+        metavar="N",
+        help="keep a window only when at least N pedestrians are present at all its frames "
+        f"(default {defaults.min_focal_agents}: Social-GAN's windows; 1: any scored pedestrian)",
+    )
     eth.add_argument("--overwrite", action="store_true", help="replace existing output files")
     inter = commands.add_parser("interaction", help="INTERACTION track CSVs, one output file")
     inter.add_argument("inputs", nargs="+", help="track CSV files or folders holding them")
@@ -77,7 +86,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def _run(args: argparse.Namespace) -> list[Path]:
     """The import the subcommand asks for; ValueError for a bad setting."""
     if args.command == "eth-ucy":
-        config = EthUcyConfig(scenes=tuple(args.scenes), stride=args.stride)
+        config = EthUcyConfig(
+            scenes=tuple(args.scenes),
+            stride=args.stride,
+            min_focal_agents=args.min_focal_agents,
+        )
         return import_eth_ucy(args.root, args.out, config, args.overwrite, progress=True)
     config = InteractionConfig(stride=args.stride, seed=args.seed)
     return [import_interaction(args.inputs, args.out, config, args.overwrite, progress=True)]

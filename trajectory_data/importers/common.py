@@ -68,14 +68,14 @@ def frame_step(tracks: Tracks) -> int:
     return step
 
 
-def cut_windows(tracks: Tracks, num_steps: int, stride: int) -> Windows:
+def cut_windows(tracks: Tracks, num_steps: int, stride: int, min_focal: int = 1) -> Windows:
     """Windows of `num_steps` frames on the recording's frame grid (frame_step apart), one
     starting every `stride` grid steps from the first frame, up to the last frame.
 
     Agents are ordered by id and padded as invalid up to A, the largest number of agents seen
     in one window. Every agent seen at any frame of a window is in it; the focal agents are
-    those present at all T frames. Windows without a focal agent are dropped (nothing in them
-    would be scored).
+    those present at all T frames. Windows with fewer than `min_focal` focal agents are dropped
+    (with the default 1: those where nothing would be scored).
     """
     channels = tracks.values.shape[1]
     step = frame_step(tracks)
@@ -92,7 +92,7 @@ def cut_windows(tracks: Tracks, num_steps: int, stride: int) -> Windows:
     for start in starts:
         here = present[start : start + num_steps]  # (T, P)
         seen = np.flatnonzero(here.any(axis=0))
-        if here[:, seen].all(axis=0).any():
+        if here[:, seen].all(axis=0).sum() >= max(min_focal, 1):
             chosen.append((start, seen))
     width = max((len(seen) for _, seen in chosen), default=0)
     out = Windows(
