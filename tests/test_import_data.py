@@ -408,3 +408,42 @@ def test_missing_output_folders_are_created(tmp_path: Path) -> None:
     below_a_file = tmp_path / "new" / "data" / "eth_ucy_hotel.h5" / "x.h5"
     refused = run_importer("interaction", tmp_path / "csv", "--out", below_a_file)
     assert refused.returncode == 2 and "is not a directory" in refused.stderr
+
+
+def test_an_empty_split_is_refused_naming_it_and_nothing_is_written(tmp_path: Path) -> None:
+    raw, out = tmp_path / "raw", tmp_path / "out"
+    make_scene(raw)  # hotel: under the default rule only train's window at g = 2 is kept
+    make_pairs_scene(raw)  # zara1 imports, but is not written either
+    result = run_importer("eth-ucy", raw, "--out", out, "--scenes", "zara1", "hotel")
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        f"error: eth_ucy_hotel.h5: the val split would be empty: no window of {raw}/hotel/val/"
+        "*.txt has 2 pedestrian(s) present at all 20 frames; lower --min-focal-agents "
+        "(min_focal_agents, now 2)"
+    ]
+    assert not out.exists()
+    (raw / "hotel" / "test" / "d.txt").unlink()  # an empty folder: the old rule fails too
+    result = run_importer("eth-ucy", raw, "--out", out, "--scenes", "hotel", *ANY)
+    assert result.returncode == 2 and not out.exists()
+    assert result.stderr.strip().splitlines() == [
+        f"error: eth_ucy_hotel.h5: the test split would be empty: {raw}/hotel/test holds no "
+        ".txt file; add that split's files"
+    ]
+    write_file(raw / "hotel" / "test" / "d.txt", rows(1, range(19)))  # 19 frames: no window
+    with pytest.raises(ImportDataError, match="test split would be empty: .* add longer ones$"):
+        import_eth_ucy(raw, out, EthUcyConfig(scenes=("hotel",), min_focal_agents=1), False)
+    assert not out.exists()
+
+
+def test_interaction_empty_split_is_refused(tmp_path: Path) -> None:
+    folder = tmp_path / "raw"
+    folder.mkdir()
+    rows_ = [row for case in (1, 2, 3) for row in interaction_rows(case)]  # 2 / 0 / 1 sequences
+    (folder / "b.csv").write_text("\n".join([HEADER, *rows_]) + "\n")
+    out = tmp_path / "inter.h5"
+    result = run_importer("interaction", folder, "--out", out)
+    assert result.returncode == 2 and not out.exists()
+    assert result.stderr.strip().splitlines() == [
+        "error: inter.h5: the val split would be empty: the split by sequence (0.8 / 0.1 / rest) "
+        "gives it none of 3 sequence(s); import more sequences"
+    ]

@@ -19,9 +19,11 @@ or a case_id of it). See trajectory_data/importers/interaction.py.
 
 The data is read from disk as downloaded; nothing is fetched.
 
-All files or none are written; an existing output is refused unless --overwrite. Exit status
-(docs/CLI.md): 0 written; 2 usage error, malformed input (one line naming the file and line) or
-an output that cannot be written there; 1 a write that failed (full disk); 130 interrupted.
+All files or none are written; an existing output is refused unless --overwrite, and so is an
+import that would leave a train, val or test split without windows (one line naming the file,
+the split and what to change). Exit status (docs/CLI.md): 0 written; 2 usage error, malformed
+input (one line naming the file and line), an empty split or an output that cannot be written
+there; 1 a write that failed (full disk); 130 interrupted.
 """
 
 from __future__ import annotations

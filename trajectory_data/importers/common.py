@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -137,6 +137,18 @@ def windows_set(
     if not sets:
         return TrajectorySet.empty(num_steps, 0, num_states=num_channels, num_actions=0)
     return TrajectorySet.concatenate(sets)
+
+
+def require_splits(
+    name: str, splits: Mapping[str, TrajectorySet], why: Callable[[str], str]
+) -> None:
+    """ImportDataError, one line naming the file `name`, the first empty split and `why(split)`
+    (what left it empty and what to change), unless every split holds a window: a file without
+    training windows trains nothing, one without validation or test windows chooses or scores
+    nothing, and each would fail only later, far from its cause."""
+    for split, data in splits.items():
+        if data.n == 0:
+            raise ImportDataError(f"{name}: the {split} split would be empty: {why(split)}")
 
 
 def check_outputs(paths: list[Path], overwrite: bool) -> None:

@@ -16,6 +16,9 @@ it has at least `min_focal_agents` focal pedestrians, 2 by default: Social-GAN's
 min_ped = 1), whose windows most ETH/UCY tables and Schöller et al.'s constant-velocity paper use.
 The rule of this importer before that default, any focal pedestrian, is `min_focal_agents=1`.
 
+A scene whose train, val or test split would hold no window is refused (ImportDataError naming
+the split and what to change), and then no file is written.
+
 Output: `<out>/eth_ucy_<scene>.h5` per scene, states x, y only, nothing optional recorded, one
 role ("pedestrian"), one case ("all"); the file's config lists every source file with its frame
 step and its pedestrian, window and focal-agent counts.
@@ -41,6 +44,7 @@ from trajectory_data.importers.common import (
     cut_windows,
     frame_step,
     reading_bar,
+    require_splits,
     windows_set,
     write_all,
 )
@@ -173,6 +177,20 @@ def import_scene(
                 }
             )
         splits[split] = windows_set(parts, config.num_steps, num_channels=2)
+
+    def why(split: str) -> str:
+        folder = root / scene / split
+        if not sources[split]:
+            return f"{folder} holds no .txt file; add that split's files"
+        rule = f"{config.min_focal_agents} pedestrian(s) present at all {config.num_steps} frames"
+        change = (
+            f"lower --min-focal-agents (min_focal_agents, now {config.min_focal_agents})"
+            if config.min_focal_agents > 1
+            else "its tracks are all shorter than a window; add longer ones"
+        )
+        return f"no window of {folder}/*.txt has {rule}; {change}"
+
+    require_splits(f"eth_ucy_{scene}.h5", splits, why)
     meta = DatasetMeta(
         scenario=f"eth_ucy_{scene}",
         dt=config.dt_s,

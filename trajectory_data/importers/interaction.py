@@ -37,6 +37,7 @@ from trajectory_data.importers.common import (
     cut_windows,
     frame_step,
     reading_bar,
+    require_splits,
     windows_set,
     write_all,
 )
@@ -240,6 +241,20 @@ def import_interaction(
     splits: dict[str, TrajectorySet] = {
         split: windows_set(part, config.num_steps, channels) for split, part in parts.items()
     }
+
+    def why(split: str) -> str:
+        given = sum(entry["split"] == split for entry in listing)
+        if given == 0:
+            return (
+                f"the split by sequence ({config.train_fraction:g} / {config.val_fraction:g} / "
+                f"rest) gives it none of {len(listing)} sequence(s); import more sequences"
+            )
+        return (
+            f"its {given} sequence(s) hold no {config.num_steps}-frame window with an agent "
+            "present throughout; import longer ones"
+        )
+
+    require_splits(out.name, splits, why)
     meta = DatasetMeta(
         scenario="interaction",
         dt=config.dt_s,
