@@ -63,21 +63,22 @@ def run_importer(*args: object) -> subprocess.CompletedProcess:
 ANY = ("--min-focal-agents", "1")
 
 
-def make_pairs_scene(root: Path) -> None:
-    """Scene `zara1` for the two-focal-pedestrian rule (frames 100 + 10 g, grid steps g).
+def make_pairs_scene(root: Path, scene: str = "zara1") -> None:
+    """Scene `zara1` (or `scene`) for the two-focal-pedestrian rule (frames 100 + 10 g, grid
+    steps g).
     train/a.txt: ped 1 at g = 0..24, ped 2 at g = 3..24, ped 3 at g = 0..19. Windows start at
     g = 0..5; focal there: {1, 3}, {1}, {1}, {1, 2}, {1, 2}, {1, 2}. Two or more: starts 0, 3, 4,
     5 (4 windows); at least one: all 6 (starts 1 and 2 hold peds 2 and 3 in part, not focal).
     val/b.txt: peds 1, 2 at g = 0..19: 1 window with 2 focal (either rule).
     test/c.txt: peds 1, 2, 3 at g = 0..20 (windows at 0 and 1, 3 focal each), ped 4 alone at
     g = 30..49 (1 window, 1 focal): 2 windows, or 3 with the old rule."""
-    scene = root / "zara1"
+    folder = root / scene
     write_file(
-        scene / "train" / "a.txt", rows(1, range(25)) + rows(2, range(3, 25)) + rows(3, range(20))
+        folder / "train" / "a.txt", rows(1, range(25)) + rows(2, range(3, 25)) + rows(3, range(20))
     )
-    write_file(scene / "val" / "b.txt", rows(1, range(20)) + rows(2, range(20)))
+    write_file(folder / "val" / "b.txt", rows(1, range(20)) + rows(2, range(20)))
     table = [r for ped in (1, 2, 3) for r in rows(ped, range(21))] + rows(4, range(30, 50))
-    write_file(scene / "test" / "c.txt", table)
+    write_file(folder / "test" / "c.txt", table)
 
 
 @pytest.mark.parametrize(
@@ -266,7 +267,7 @@ def test_single_pedestrian_windows_train_and_evaluate(tmp_path: Path) -> None:
 HEADER = "case_id,track_id,frame_id,timestamp_ms,agent_type,x,y,vx,vy,psi_rad,length,width"
 
 
-def interaction_rows(case: int, with_case: bool = True, heading: bool = False) -> list[str]:
+def interaction_rows(case: int, heading: bool = False) -> list[str]:
     """One sequence, frames 1..110 (0.1 s): track 1 (a car) at every frame, track 2 (a
     pedestrian) at frames 6..105 (100 frames). Windows of 100 frames every 10: starts 1 and 11,
     each with track 1 focal and track 2 present but not at every frame. x encodes the case."""
@@ -279,16 +280,16 @@ def interaction_rows(case: int, with_case: bool = True, heading: bool = False) -
             size = "4.0,1.8" if kind == "car" else ","
             fields = [str(track), str(frame), str(frame * 100), kind, f"{x}", f"{y}", "5", "0"]
             row = ",".join([*fields, psi, size])
-            out.append(f"{case},{row}" if with_case else row)
+            out.append(f"{case},{row}")
     return out
 
 
 def write_interaction(folder: Path, heading: bool = False) -> None:
-    """10 sequences: a.csv without case_id (x ~ 0) and b.csv with cases 1..9."""
+    """10 sequences: a.csv with case 0 (x ~ 0) and b.csv with cases 1..9. (A file without
+    case_id is a continuous recording: test_import_interaction_recordings.py.)"""
     folder.mkdir(parents=True, exist_ok=True)
-    plain = HEADER.split(",", 1)[1]
-    a = interaction_rows(0, with_case=False, heading=heading)
-    (folder / "a.csv").write_text("\n".join([plain, *a]) + "\n")
+    a = interaction_rows(0, heading=heading)
+    (folder / "a.csv").write_text("\n".join([HEADER, *a]) + "\n")
     b = [row for case in range(1, 10) for row in interaction_rows(case, heading=heading)]
     (folder / "b.csv").write_text("\n".join([HEADER, *b]) + "\n")
 

@@ -14,8 +14,11 @@ trajectory_data/importers/eth_ucy.py.
 interaction: INPUT files or folders (searched for *.csv) of INTERACTION track CSVs (columns
 case_id (optional), track_id, frame_id, timestamp_ms, agent_type, x, y, vx, vy, psi_rad, length,
 width); writes one file: 40 observed + 60 predicted steps of 0.1 s, a window every --stride
-frames, the agents present in all 100 frames focal, 80/10/10 train/val/test by sequence (a file,
-or a case_id of it). See trajectory_data/importers/interaction.py.
+frames, the agents present in all 100 frames focal, 80/10/10 train/val/test: by sequence (a
+case_id) for files with case_id; for files without it (continuous recordings, a folder's
+vehicle_tracks_NNN.csv and pedestrian_tracks_NNN.csv together) by time, each recording's first
+80 % of frames train, the next 10 % val, the last 10 % test, windows across a boundary dropped.
+See trajectory_data/importers/interaction.py.
 
 The data is read from disk as downloaded; nothing is fetched.
 
@@ -79,7 +82,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help=f"frames between window starts (default {defaults_i.stride})",
     )
     inter.add_argument(
-        "--seed", type=int, default=defaults_i.seed, help="seed of the split (default 0)"
+        "--seed",
+        type=int,
+        default=defaults_i.seed,
+        help="seed of the split by sequence (default 0; recordings split by time use none)",
     )
     inter.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     return parser.parse_args(argv)

@@ -41,11 +41,23 @@ class Windows:
     valid: np.ndarray  # (W, T, A) bool
     focal: np.ndarray  # (W, A) bool: present at all T steps
     agent: np.ndarray  # (W, A) int64 agent id of each slot, -1 for padding
+    start: np.ndarray  # (W,) int64 grid step of each window's first frame (0: the first frame)
 
     @property
     def count(self) -> int:
         """Number of windows, W."""
         return int(self.valid.shape[0])
+
+    def select(self, keep: np.ndarray) -> Windows:
+        """The windows where `keep` (W,) bool is true, the agent axis cut to the widest of them."""
+        width = int((self.agent[keep] >= 0).sum(axis=1).max(initial=0))
+        return Windows(
+            states=self.states[keep][:, :, :width],
+            valid=self.valid[keep][:, :, :width],
+            focal=self.focal[keep][:, :width],
+            agent=self.agent[keep][:, :width],
+            start=self.start[keep],
+        )
 
 
 def frame_step(tracks: Tracks) -> int:
@@ -100,6 +112,7 @@ def cut_windows(tracks: Tracks, num_steps: int, stride: int, min_focal: int = 1)
         valid=np.zeros((len(chosen), num_steps, width), dtype=bool),
         focal=np.zeros((len(chosen), width), dtype=bool),
         agent=np.full((len(chosen), width), -1, dtype=np.int64),
+        start=np.array([start for start, _ in chosen], dtype=np.int64),
     )
     for w, (start, seen) in enumerate(chosen):
         rows, slots = slice(start, start + num_steps), slice(0, len(seen))
