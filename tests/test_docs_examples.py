@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 from conftest import REPO_ROOT, tool_env
-from test_import_data import make_scene, write_interaction
+from test_import_data import make_pairs_scene, write_interaction
 
 SKIP = "skip"
 PLAN = {  # (doc, index of its bash block) -> how the test treats it
@@ -58,7 +58,7 @@ def prepare(kind: str, folder: Path) -> None:
     if kind.startswith("eth_ucy"):
         for scene in ("eth", "hotel", "univ", "zara1", "zara2"):  # the same small scene, renamed
             made = folder / f"made_{scene}"
-            make_scene(made)
+            make_pairs_scene(made, "hotel")  # imports under the default window rule
             (folder / "ETH_UCY").mkdir(exist_ok=True)
             (made / "hotel").rename(folder / "ETH_UCY" / scene)
             made.rmdir()

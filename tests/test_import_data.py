@@ -59,11 +59,73 @@ def run_importer(*args: object) -> subprocess.CompletedProcess:
     return run_tool("import_data.py", *args)
 
 
+# make_scene's counts are under the rule before Social-GAN's: any focal pedestrian keeps a window
+ANY = ("--min-focal-agents", "1")
+
+
+def make_pairs_scene(root: Path, scene: str = "zara1") -> None:
+    """Scene `zara1` (or `scene`) for the two-focal-pedestrian rule (frames 100 + 10 g, grid
+    steps g).
+    train/a.txt: ped 1 at g = 0..24, ped 2 at g = 3..24, ped 3 at g = 0..19. Windows start at
+    g = 0..5; focal there: {1, 3}, {1}, {1}, {1, 2}, {1, 2}, {1, 2}. Two or more: starts 0, 3, 4,
+    5 (4 windows); at least one: all 6 (starts 1 and 2 hold peds 2 and 3 in part, not focal).
+    val/b.txt: peds 1, 2 at g = 0..19: 1 window with 2 focal (either rule).
+    test/c.txt: peds 1, 2, 3 at g = 0..20 (windows at 0 and 1, 3 focal each), ped 4 alone at
+    g = 30..49 (1 window, 1 focal): 2 windows, or 3 with the old rule."""
+    folder = root / scene
+    write_file(
+        folder / "train" / "a.txt", rows(1, range(25)) + rows(2, range(3, 25)) + rows(3, range(20))
+    )
+    write_file(folder / "val" / "b.txt", rows(1, range(20)) + rows(2, range(20)))
+    table = [r for ped in (1, 2, 3) for r in rows(ped, range(21))] + rows(4, range(30, 50))
+    write_file(folder / "test" / "c.txt", table)
+
+
+@pytest.mark.parametrize(
+    ("flags", "rule", "counts", "starts"),
+    [
+        ((), 2, [4, 1, 2], [0, 3, 4, 5]),
+        (("--min-focal-agents", "2"), 2, [4, 1, 2], [0, 3, 4, 5]),
+        (ANY, 1, [6, 1, 3], [0, 1, 2, 3, 4, 5]),
+    ],
+)
+def test_windows_need_two_focal_pedestrians_by_default(tmp_path, flags, rule, counts, starts):
+    make_pairs_scene(tmp_path / "raw")
+    out = tmp_path / "out"
+    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "zara1", *flags)
+    assert result.returncode == 0, result.stderr
+    meta, splits = read_dataset(out / "eth_ucy_zara1.h5")
+    assert [splits[s].n for s in SPLITS] == counts
+    assert meta.config["settings"]["min_focal_agents"] == rule
+    train = splits["train"]
+    # slot 0 is ped 1, present throughout: its first x (1 + 0.1 g) gives the window's start g
+    first_x = train.states[:, 0, 0, 0]
+    assert np.round((first_x - 1) / 0.1).astype(int).tolist() == starts
+    focal_sets = {0: [1, 3], 1: [1], 2: [1], 3: [1, 2], 4: [1, 2], 5: [1, 2]}
+    for w, start in enumerate(starts):  # slots: peds 1, 2, 3 in id order
+        assert np.flatnonzero(train.focal[w]).tolist() == [p - 1 for p in focal_sets[start]]
+    assert (splits["val"].focal.sum(axis=1) == 2).all()
+    assert splits["test"].focal.sum(axis=1).tolist() == [3, 3, 1][: counts[2]]
+    windows = {s["file"]: s["windows"] for s in meta.config["sources"]["test"]}
+    assert windows == {"zara1/test/c.txt": counts[2]}
+
+
+def test_min_focal_agents_below_one_is_refused(tmp_path: Path) -> None:
+    make_pairs_scene(tmp_path / "raw")
+    out = tmp_path / "out"
+    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--min-focal-agents", "0")
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        "error: EthUcyConfig.min_focal_agents is out of range: 0"
+    ]
+    assert not out.exists()
+
+
 def test_windows_counted_by_hand_read_back(tmp_path: Path) -> None:
     make_scene(tmp_path / "raw")
     out = tmp_path / "out"
     out.mkdir()
-    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
+    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", *ANY)
     assert result.returncode == 0, result.stderr
     assert result.stderr == "writing 1 file(s)\n"  # no silent phase; a quick read shows no bar
     path = out / "eth_ucy_hotel.h5"
@@ -102,7 +164,8 @@ def test_windows_counted_by_hand_read_back(tmp_path: Path) -> None:
 
 def test_constant_velocity_equals_an_independent_computation(tmp_path: Path) -> None:
     make_scene(tmp_path / "raw")
-    paths = import_eth_ucy(tmp_path / "raw", tmp_path, EthUcyConfig(scenes=("hotel",)), False)
+    config = EthUcyConfig(scenes=("hotel",), min_focal_agents=1)
+    paths = import_eth_ucy(tmp_path / "raw", tmp_path, config, False)
     scores = evaluate_baseline("const_vel", paths[0], "test").scores["main_agents"]["overall"]
     errors = []  # test/d.txt: ped 1 at g = 0..20, windows start at g = 0 and 1
     for start in (0, 1):
@@ -148,20 +211,22 @@ def test_refuses_to_overwrite_and_writes_all_scenes_or_none(tmp_path: Path) -> N
     make_scene(tmp_path / "raw")
     out = tmp_path / "out"
     out.mkdir()
-    first = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
+    first = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", *ANY)
     assert first.returncode == 0
     before = (out / "eth_ucy_hotel.h5").read_bytes()
-    again = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
+    again = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", *ANY)
     assert again.returncode == 2 and "already exists; pass --overwrite" in again.stderr
     assert (out / "eth_ucy_hotel.h5").read_bytes() == before
     forced = run_importer(
-        "eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", "--overwrite"
+        "eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", "--overwrite", *ANY
     )
     assert forced.returncode == 0
     # zara1 has no folder: the error names it and hotel is not written either
     fresh = tmp_path / "fresh"
     fresh.mkdir()
-    both = run_importer("eth-ucy", tmp_path / "raw", "--out", fresh, "--scenes", "hotel", "zara1")
+    both = run_importer(
+        "eth-ucy", tmp_path / "raw", "--out", fresh, "--scenes", "hotel", "zara1", *ANY
+    )
     assert both.returncode == 2 and "zara1/train: missing folder" in both.stderr
     assert list(fresh.iterdir()) == []
 
@@ -184,7 +249,8 @@ def test_single_pedestrian_windows_train_and_evaluate(tmp_path: Path) -> None:
     raw = tmp_path / "raw"
     for split, ped in (("train", 1), ("val", 2), ("test", 3)):
         write_file(raw / "hotel" / split / "a.txt", rows(ped, range(22)))
-    (path,) = import_eth_ucy(raw, tmp_path, EthUcyConfig(scenes=("hotel",)), False)
+    config = EthUcyConfig(scenes=("hotel",), min_focal_agents=1)
+    (path,) = import_eth_ucy(raw, tmp_path, config, False)
     assert read_dataset(path)[1]["train"].num_agents == 1
     dataset = TrajectoryDataset(path, "train")
     assert dataset.all().num_agents == 2 and not dataset.all().valid[:, :, 1].any()
@@ -201,7 +267,7 @@ def test_single_pedestrian_windows_train_and_evaluate(tmp_path: Path) -> None:
 HEADER = "case_id,track_id,frame_id,timestamp_ms,agent_type,x,y,vx,vy,psi_rad,length,width"
 
 
-def interaction_rows(case: int, with_case: bool = True, heading: bool = False) -> list[str]:
+def interaction_rows(case: int, heading: bool = False) -> list[str]:
     """One sequence, frames 1..110 (0.1 s): track 1 (a car) at every frame, track 2 (a
     pedestrian) at frames 6..105 (100 frames). Windows of 100 frames every 10: starts 1 and 11,
     each with track 1 focal and track 2 present but not at every frame. x encodes the case."""
@@ -214,16 +280,16 @@ def interaction_rows(case: int, with_case: bool = True, heading: bool = False) -
             size = "4.0,1.8" if kind == "car" else ","
             fields = [str(track), str(frame), str(frame * 100), kind, f"{x}", f"{y}", "5", "0"]
             row = ",".join([*fields, psi, size])
-            out.append(f"{case},{row}" if with_case else row)
+            out.append(f"{case},{row}")
     return out
 
 
 def write_interaction(folder: Path, heading: bool = False) -> None:
-    """10 sequences: a.csv without case_id (x ~ 0) and b.csv with cases 1..9."""
+    """10 sequences: a.csv with case 0 (x ~ 0) and b.csv with cases 1..9. (A file without
+    case_id is a continuous recording: test_import_interaction_recordings.py.)"""
     folder.mkdir(parents=True, exist_ok=True)
-    plain = HEADER.split(",", 1)[1]
-    a = interaction_rows(0, with_case=False, heading=heading)
-    (folder / "a.csv").write_text("\n".join([plain, *a]) + "\n")
+    a = interaction_rows(0, heading=heading)
+    (folder / "a.csv").write_text("\n".join([HEADER, *a]) + "\n")
     b = [row for case in range(1, 10) for row in interaction_rows(case, heading=heading)]
     (folder / "b.csv").write_text("\n".join([HEADER, *b]) + "\n")
 
@@ -336,10 +402,49 @@ def test_interaction_reads_a_csv_with_a_byte_order_mark(tmp_path: Path) -> None:
 def test_missing_output_folders_are_created(tmp_path: Path) -> None:
     make_scene(tmp_path / "raw")
     out = tmp_path / "new" / "data"
-    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel")
+    result = run_importer("eth-ucy", tmp_path / "raw", "--out", out, "--scenes", "hotel", *ANY)
     assert result.returncode == 0, result.stderr
     assert sorted(p.name for p in out.iterdir()) == ["eth_ucy_hotel.h5"]
     write_interaction(tmp_path / "csv")
     below_a_file = tmp_path / "new" / "data" / "eth_ucy_hotel.h5" / "x.h5"
     refused = run_importer("interaction", tmp_path / "csv", "--out", below_a_file)
     assert refused.returncode == 2 and "is not a directory" in refused.stderr
+
+
+def test_an_empty_split_is_refused_naming_it_and_nothing_is_written(tmp_path: Path) -> None:
+    raw, out = tmp_path / "raw", tmp_path / "out"
+    make_scene(raw)  # hotel: under the default rule only train's window at g = 2 is kept
+    make_pairs_scene(raw)  # zara1 imports, but is not written either
+    result = run_importer("eth-ucy", raw, "--out", out, "--scenes", "zara1", "hotel")
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        f"error: eth_ucy_hotel.h5: the val split would be empty: no window of {raw}/hotel/val/"
+        "*.txt has 2 pedestrian(s) present at all 20 frames; lower --min-focal-agents "
+        "(min_focal_agents, now 2)"
+    ]
+    assert not out.exists()
+    (raw / "hotel" / "test" / "d.txt").unlink()  # an empty folder: the old rule fails too
+    result = run_importer("eth-ucy", raw, "--out", out, "--scenes", "hotel", *ANY)
+    assert result.returncode == 2 and not out.exists()
+    assert result.stderr.strip().splitlines() == [
+        f"error: eth_ucy_hotel.h5: the test split would be empty: {raw}/hotel/test holds no "
+        ".txt file; add that split's files"
+    ]
+    write_file(raw / "hotel" / "test" / "d.txt", rows(1, range(19)))  # 19 frames: no window
+    with pytest.raises(ImportDataError, match="test split would be empty: .* add longer ones$"):
+        import_eth_ucy(raw, out, EthUcyConfig(scenes=("hotel",), min_focal_agents=1), False)
+    assert not out.exists()
+
+
+def test_interaction_empty_split_is_refused(tmp_path: Path) -> None:
+    folder = tmp_path / "raw"
+    folder.mkdir()
+    rows_ = [row for case in (1, 2, 3) for row in interaction_rows(case)]  # 2 / 0 / 1 sequences
+    (folder / "b.csv").write_text("\n".join([HEADER, *rows_]) + "\n")
+    out = tmp_path / "inter.h5"
+    result = run_importer("interaction", folder, "--out", out)
+    assert result.returncode == 2 and not out.exists()
+    assert result.stderr.strip().splitlines() == [
+        "error: inter.h5: the val split would be empty: the split by sequence (0.8 / 0.1 / rest) "
+        "gives it none of 3 sequence(s); import more sequences"
+    ]

@@ -7,20 +7,26 @@
 eth-ucy: ROOT holds the scenes eth, hotel, univ, zara1, zara2, each with train/, val/ and test/
 folders of `frame ped x y` text files (the standard leave-one-out layout); writes
 OUT/eth_ucy_<scene>.h5 per scene: 8 observed + 12 predicted steps of 0.4 s, windows of 20 frames
-with stride 1, the pedestrians present in all 20 frames focal (scored). See
+with stride 1, the pedestrians present in all 20 frames focal (scored), a window kept when it has
+at least --min-focal-agents of them (default 2, Social-GAN's windows). See
 trajectory_data/importers/eth_ucy.py.
 
 interaction: INPUT files or folders (searched for *.csv) of INTERACTION track CSVs (columns
 case_id (optional), track_id, frame_id, timestamp_ms, agent_type, x, y, vx, vy, psi_rad, length,
 width); writes one file: 40 observed + 60 predicted steps of 0.1 s, a window every --stride
-frames, the agents present in all 100 frames focal, 80/10/10 train/val/test by sequence (a file,
-or a case_id of it). See trajectory_data/importers/interaction.py.
+frames, the agents present in all 100 frames focal, 80/10/10 train/val/test: by sequence (a
+case_id) for files with case_id; for files without it (continuous recordings, a folder's
+vehicle_tracks_NNN.csv and pedestrian_tracks_NNN.csv together) by time, each recording's first
+80 % of frames train, the next 10 % val, the last 10 % test, windows across a boundary dropped.
+See trajectory_data/importers/interaction.py.
 
 The data is read from disk as downloaded; nothing is fetched.
 
-All files or none are written; an existing output is refused unless --overwrite. Exit status
-(docs/CLI.md): 0 written; 2 usage error, malformed input (one line naming the file and line) or
-an output that cannot be written there; 1 a write that failed (full disk); 130 interrupted.
+All files or none are written; an existing output is refused unless --overwrite, and so is an
+import that would leave a train, val or test split without windows (one line naming the file,
+the split and what to change). Exit status (docs/CLI.md): 0 written; 2 usage error, malformed
+input (one line naming the file and line), an empty split or an output that cannot be written
+there; 1 a write that failed (full disk); 130 interrupted.
 """
 
 from __future__ import annotations
@@ -56,6 +62,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default=defaults.stride,
         help=f"steps between window starts (default {defaults.stride})",
     )
+    eth.add_argument(
+        "--min-focal-agents",
+        type=int,
+        default=defaults.min_focal_agents,
+        metavar="N",
+        help="keep a window only when at least N pedestrians are present at all its frames "
+        f"(default {defaults.min_focal_agents}: Social-GAN's windows; 1: any scored pedestrian)",
+    )
     eth.add_argument("--overwrite", action="store_true", help="replace existing output files")
     inter = commands.add_parser("interaction", help="INTERACTION track CSVs, one output file")
     inter.add_argument("inputs", nargs="+", help="track CSV files or folders holding them")
@@ -68,7 +82,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help=f"frames between window starts (default {defaults_i.stride})",
     )
     inter.add_argument(
-        "--seed", type=int, default=defaults_i.seed, help="seed of the split (default 0)"
+        "--seed",
+        type=int,
+        default=defaults_i.seed,
+        help="seed of the split by sequence (default 0; recordings split by time use none)",
     )
     inter.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     return parser.parse_args(argv)
@@ -77,7 +94,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def _run(args: argparse.Namespace) -> list[Path]:
     """The import the subcommand asks for; ValueError for a bad setting."""
     if args.command == "eth-ucy":
-        config = EthUcyConfig(scenes=tuple(args.scenes), stride=args.stride)
+        config = EthUcyConfig(
+            scenes=tuple(args.scenes),
+            stride=args.stride,
+            min_focal_agents=args.min_focal_agents,
+        )
         return import_eth_ucy(args.root, args.out, config, args.overwrite, progress=True)
     config = InteractionConfig(stride=args.stride, seed=args.seed)
     return [import_interaction(args.inputs, args.out, config, args.overwrite, progress=True)]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,11 +41,23 @@ class Windows:
     valid: np.ndarray  # (W, T, A) bool
     focal: np.ndarray  # (W, A) bool: present at all T steps
     agent: np.ndarray  # (W, A) int64 agent id of each slot, -1 for padding
+    start: np.ndarray  # (W,) int64 grid step of each window's first frame (0: the first frame)
 
     @property
     def count(self) -> int:
         """Number of windows, W."""
         return int(self.valid.shape[0])
+
+    def select(self, keep: np.ndarray) -> Windows:
+        """The windows where `keep` (W,) bool is true, the agent axis cut to the widest of them."""
+        width = int((self.agent[keep] >= 0).sum(axis=1).max(initial=0))
+        return Windows(
+            states=self.states[keep][:, :, :width],
+            valid=self.valid[keep][:, :, :width],
+            focal=self.focal[keep][:, :width],
+            agent=self.agent[keep][:, :width],
+            start=self.start[keep],
+        )
 
 
 def frame_step(tracks: Tracks) -> int:
@@ -68,14 +80,14 @@ def frame_step(tracks: Tracks) -> int:
     return step
 
 
-def cut_windows(tracks: Tracks, num_steps: int, stride: int) -> Windows:
+def cut_windows(tracks: Tracks, num_steps: int, stride: int, min_focal: int = 1) -> Windows:
     """Windows of `num_steps` frames on the recording's frame grid (frame_step apart), one
     starting every `stride` grid steps from the first frame, up to the last frame.
 
     Agents are ordered by id and padded as invalid up to A, the largest number of agents seen
     in one window. Every agent seen at any frame of a window is in it; the focal agents are
-    those present at all T frames. Windows without a focal agent are dropped (nothing in them
-    would be scored).
+    those present at all T frames. Windows with fewer than `min_focal` focal agents are dropped
+    (with the default 1: those where nothing would be scored).
     """
     channels = tracks.values.shape[1]
     step = frame_step(tracks)
@@ -92,7 +104,7 @@ def cut_windows(tracks: Tracks, num_steps: int, stride: int) -> Windows:
     for start in starts:
         here = present[start : start + num_steps]  # (T, P)
         seen = np.flatnonzero(here.any(axis=0))
-        if here[:, seen].all(axis=0).any():
+        if here[:, seen].all(axis=0).sum() >= max(min_focal, 1):
             chosen.append((start, seen))
     width = max((len(seen) for _, seen in chosen), default=0)
     out = Windows(
@@ -100,6 +112,7 @@ def cut_windows(tracks: Tracks, num_steps: int, stride: int) -> Windows:
         valid=np.zeros((len(chosen), num_steps, width), dtype=bool),
         focal=np.zeros((len(chosen), width), dtype=bool),
         agent=np.full((len(chosen), width), -1, dtype=np.int64),
+        start=np.array([start for start, _ in chosen], dtype=np.int64),
     )
     for w, (start, seen) in enumerate(chosen):
         rows, slots = slice(start, start + num_steps), slice(0, len(seen))
@@ -137,6 +150,18 @@ def windows_set(
     if not sets:
         return TrajectorySet.empty(num_steps, 0, num_states=num_channels, num_actions=0)
     return TrajectorySet.concatenate(sets)
+
+
+def require_splits(
+    name: str, splits: Mapping[str, TrajectorySet], why: Callable[[str], str]
+) -> None:
+    """ImportDataError, one line naming the file `name`, the first empty split and `why(split)`
+    (what left it empty and what to change), unless every split holds a window: a file without
+    training windows trains nothing, one without validation or test windows chooses or scores
+    nothing, and each would fail only later, far from its cause."""
+    for split, data in splits.items():
+        if data.n == 0:
+            raise ImportDataError(f"{name}: the {split} split would be empty: {why(split)}")
 
 
 def check_outputs(paths: list[Path], overwrite: bool) -> None:

@@ -10,8 +10,14 @@ starting at every step (stride 1). A file's frame-id step is derived from the da
 common gap between its frame ids: 10 in most files, 6 in biwi_eth), so a window covers frame ids
 f, f + step, ..., f + 19 step. Every pedestrian seen in a window is one of its agents (valid where
 observed); the pedestrians present at all 20 frames are its focal agents, the ones scored by the
-metrics and choosing checkpoints, as the usual evaluation counts them. A window without such a
-pedestrian is dropped.
+metrics and choosing checkpoints, as the usual evaluation counts them. A window is kept only when
+it has at least `min_focal_agents` focal pedestrians, 2 by default: Social-GAN's loader
+(Gupta et al., CVPR 2018, `sgan/data/trajectories.py`: `num_peds_considered > min_ped` with
+min_ped = 1), whose windows most ETH/UCY tables and Schöller et al.'s constant-velocity paper use.
+The rule of this importer before that default, any focal pedestrian, is `min_focal_agents=1`.
+
+A scene whose train, val or test split would hold no window is refused (ImportDataError naming
+the split and what to change), and then no file is written.
 
 Output: `<out>/eth_ucy_<scene>.h5` per scene, states x, y only, nothing optional recorded, one
 role ("pedestrian"), one case ("all"); the file's config lists every source file with its frame
@@ -38,6 +44,7 @@ from trajectory_data.importers.common import (
     cut_windows,
     frame_step,
     reading_bar,
+    require_splits,
     windows_set,
     write_all,
 )
@@ -47,13 +54,17 @@ SCENES = ("eth", "hotel", "univ", "zara1", "zara2")
 
 @dataclass(frozen=True)
 class EthUcyConfig:
-    """Protocol of the import (defaults: the standard 8 + 12 steps at 0.4 s, stride 1)."""
+    """Protocol of the import (defaults: the standard 8 + 12 steps at 0.4 s, stride 1, windows
+    with at least two focal pedestrians as Social-GAN's)."""
 
     num_observed: int = 8  # observed steps (3.2 s)
     num_predicted: int = 12  # predicted steps (4.8 s)
     dt_s: float = 0.4  # [s] between two annotated frames (2.5 Hz)
     stride: int = 1  # steps between the starts of consecutive windows
     scenes: tuple[str, ...] = SCENES  # scenes to import; each needs its folder under the root
+    # a window is kept when at least this many pedestrians are present at all its frames; 2 is
+    # Social-GAN's rule (its windows are the field's tables'), 1 keeps single-pedestrian windows
+    min_focal_agents: int = 2
 
     def __post_init__(self) -> None:
         checks = {
@@ -62,6 +73,7 @@ class EthUcyConfig:
             "dt_s": math.isfinite(self.dt_s) and self.dt_s > 0,
             "stride": self.stride >= 1,
             "scenes": len(self.scenes) > 0 and len(set(self.scenes)) == len(self.scenes),
+            "min_focal_agents": self.min_focal_agents >= 1,
         }
         for name, ok in checks.items():
             if not ok:
@@ -153,7 +165,7 @@ def import_scene(
             tracks = read_tracks(path)
             if on_file is not None:
                 on_file()
-            windows = cut_windows(tracks, config.num_steps, config.stride)
+            windows = cut_windows(tracks, config.num_steps, config.stride, config.min_focal_agents)
             parts.append((windows, None))
             sources[split].append(
                 {
@@ -165,6 +177,20 @@ def import_scene(
                 }
             )
         splits[split] = windows_set(parts, config.num_steps, num_channels=2)
+
+    def why(split: str) -> str:
+        folder = root / scene / split
+        if not sources[split]:
+            return f"{folder} holds no .txt file; add that split's files"
+        rule = f"{config.min_focal_agents} pedestrian(s) present at all {config.num_steps} frames"
+        change = (
+            f"lower --min-focal-agents (min_focal_agents, now {config.min_focal_agents})"
+            if config.min_focal_agents > 1
+            else "its tracks are all shorter than a window; add longer ones"
+        )
+        return f"no window of {folder}/*.txt has {rule}; {change}"
+
+    require_splits(f"eth_ucy_{scene}.h5", splits, why)
     meta = DatasetMeta(
         scenario=f"eth_ucy_{scene}",
         dt=config.dt_s,
