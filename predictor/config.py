@@ -353,6 +353,11 @@ class TrainConfig:
     # 2 of 22 cars in the synthetic scenarios, whose manoeuvres are the hard part; the
     # distractors' near-constant motion otherwise holds ~90 % of every term. 1: paper.
     main_agent_weight: float = 1.0
+    # [m] where the variance penalty exp(sigma) turns into its tangent (linear in sigma, C1), so
+    # that it and its gradient stay bounded (`predictor.losses.variance_penalty`): 10 m bounds a
+    # std's gradient by exp(10) ~ 2.2e4. 0: the paper's exp, counting stds above 50 m as 50 m (the
+    # runs recorded so far, whose stds reach tens of metres: a cap would change them).
+    penalty_linear_from_m: float = 0.0
     # Batch scenes of similar agent count together
     # (trajectory_data.torch_dataset.BucketBatchSampler), each padded only to its batch's largest
     # count: on ETH/UCY a split's windows have 1-57 pedestrians (mean 11), and a batch padded to the
@@ -450,6 +455,7 @@ TRAIN_RULES: dict[str, Rule] = {
     "threads": at_least(1),
     "lr_final_ratio": Rule("in [0, 1]", lambda v, _: 0 <= v <= 1),
     "main_agent_weight": above(0),
+    "penalty_linear_from_m": at_least(0),
     "device": Rule("'cpu', 'cuda' or 'cuda:N'", lambda v, _: DEVICE.fullmatch(v) is not None),
 }
 

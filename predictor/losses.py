@@ -39,19 +39,30 @@ def gaussian_nll(target: Tensor, mean: Tensor, tril: Tensor) -> Tensor:
     return 0.5 * (z0 * z0 + z1 * z1) + log_det_half + LOG_2PI  # (...)
 
 
-PENALTY_MAX_STD_M = 50.0  # [m] stds above count as this in the variance penalty (see below)
+PENALTY_MAX_STD_M = 50.0  # [m] stds above count as this in the paper's variance penalty
 
 
-def variance_penalty(gaussian: Gaussian2D, tau: float) -> Tensor:
-    """sum_k exp(sigma_k) * 1[sigma_k > tau] with sigma_k = sqrt(Sigma_kk) [m]: (...).
+def variance_penalty(gaussian: Gaussian2D, tau: float, linear_from_m: float = 0.0) -> Tensor:
+    """sum_k p(sigma_k) * 1[sigma_k > tau] with sigma_k = sqrt(Sigma_kk) [m]: (...).
 
-    sigma_k enters as min(sigma_k, PENALTY_MAX_STD_M): exp overflows float32 beyond ~88 m
-    (an infinite loss ends the run), while exp(50) ~ 5e21 is still finite when summed over a
-    batch; the likelihood keeps pulling such stds towards the errors.
+    linear_from_m = 0 (the paper's): p(sigma) = exp(min(sigma, PENALTY_MAX_STD_M)); exp overflows
+    float32 beyond ~88 m (an infinite loss ends the run), while exp(50) ~ 5e21 is finite but
+    reads as a loss of up to ~1e20 per agent-step, with no gradient above 50 m.
+
+    linear_from_m = c > 0: exp up to c and its tangent beyond,
+    p(sigma) = exp(min(sigma, c)) * (1 + max(sigma - c, 0)): continuous with a continuous
+    derivative (C1), convex and increasing, with dp/dsigma <= exp(c) everywhere, so the penalty
+    grows linearly in the std and stays finite, as does its gradient, for any finite std. Below c
+    value and gradient are exp's bit for bit (the factor is exactly 1, the tangent's gradient
+    exactly 0).
     """
     stds = gaussian.stds()  # (..., 2)
-    capped = stds.clamp(max=PENALTY_MAX_STD_M)
-    return (torch.exp(capped) * (stds > tau).to(stds.dtype)).sum(-1)  # (...)
+    if linear_from_m > 0:
+        c = linear_from_m
+        penalty = torch.exp(stds.clamp(max=c)) * (1.0 + torch.relu(stds - c))  # (..., 2)
+    else:
+        penalty = torch.exp(stds.clamp(max=PENALTY_MAX_STD_M))  # (..., 2)
+    return (penalty * (stds > tau).to(stds.dtype)).sum(-1)  # (...)
 
 
 def safe_sqrt(x: Tensor) -> Tensor:
@@ -136,6 +147,8 @@ class LossWeights:
     # (the others count 1; each term stays a weighted mean): the metric and checkpoint choice
     # score only the focal agents, 2 of 22 cars in the synthetic scenarios
     main_weight: float = 1.0
+    # [m] where the variance penalty turns linear (`variance_penalty`); 0: the paper's exp
+    penalty_linear_from_m: float = 0.0
 
 
 def compute_loss(
@@ -164,8 +177,9 @@ def compute_loss(
     w = main_agent_weights(focal, weights.main_weight, positions)
     displacement = weights.mean_loss == "displacement"
     one_mean = one.mean.detach() if displacement else one.mean
+    linear_from = weights.penalty_linear_from_m
     terms["nll"] = _mean(*masked_sum(gaussian_nll(target, one_mean, one.tril), mask, w))
-    terms["var"] = _mean(*masked_sum(variance_penalty(one, weights.tau), mask, w))
+    terms["var"] = _mean(*masked_sum(variance_penalty(one, weights.tau, linear_from), mask, w))
     terms["tv"] = _mean(*attention_tv(out.attention, valid[:, :-1]))
     total = terms["nll"] + weights.beta1 * terms["var"] + weights.beta2 * terms["tv"]
     if displacement:
@@ -183,7 +197,8 @@ def compute_loss(
             terms["de_seq"] = _mean(*masked_sum(distance(seq_target, roll.mean), seq_mask, w))
             total = total + terms["de_seq"]
         terms["nll_seq"] = _mean(*masked_sum(seq_nll, seq_mask, w))
-        terms["var_seq"] = _mean(*masked_sum(variance_penalty(roll, weights.tau), seq_mask, w))
+        seq_var = variance_penalty(roll, weights.tau, linear_from)  # (B, T_pred, N)
+        terms["var_seq"] = _mean(*masked_sum(seq_var, seq_mask, w))
         # rollout attention theta^t, t = T_obs-1 .. T-2: agents rolled out are present throughout
         roll_present = out.rollout_present.unsqueeze(1).expand(-1, roll.mean.shape[1], -1)
         terms["tv_seq"] = _mean(*attention_tv(out.rollout_attention, roll_present))

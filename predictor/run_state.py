@@ -78,24 +78,41 @@ class RunStatus:
     preset: str | None  # None: not recorded (bare configs, or a run from before presets were)
     best_epoch: int
     best_score: float | None  # validation ADE [m] of best.pt (main agents)
+    has_val: bool = True  # the data had a validation split (False: best.pt is the last epoch)
 
     def summary(self) -> str:
         """One line: the run is finished, its epochs and best validation score."""
-        best = "n/a" if self.best_score is None else f"{self.best_score:.3f} m"
         return (
-            f"run {self.out_dir} is finished: {self.epoch} of {self.epochs} epochs trained, best "
-            f"val ADE (main agents) {best} at epoch {self.best_epoch}; nothing to resume "
+            f"run {self.out_dir} is finished: {self.epoch} of {self.epochs} epochs trained, "
+            f"{best_text(self.best_score, self.best_epoch, self.has_val)}; nothing to resume "
             "(a larger --epochs trains it further)"
         )
+
+
+NO_VAL_NOTE = (
+    "the data has no validation split: no validation ADE, best.pt is the last epoch's weights"
+)
+
+
+def best_text(best_score: float | None, best_epoch: int, has_val: bool) -> str:
+    """How a summary line names best.pt: its validation ADE and epoch, or why it has none."""
+    if not has_val:
+        return f"no validation split (best.pt is the last epoch, {best_epoch})"
+    if best_score is None:
+        return "no validation score (no agent scored; best.pt is the last epoch)"
+    return f"best val ADE (main agents) {best_score:.3f} m at epoch {best_epoch}"
 
 
 def status_of(checkpoint: Mapping[str, Any], out_dir: str | os.PathLike) -> RunStatus:
     """The `RunStatus` of a `last.pt` dict. A checkpoint without the `finished` field (written
     before it existed) is finished when its epoch reached its configured epochs; one without
-    `preset` has none recorded."""
+    `preset` has none recorded; one whose data description lacks `val_count` had a validation
+    split."""
     epoch, epochs = int(checkpoint["epoch"]), int(checkpoint["train_config"]["epochs"])
     finished = checkpoint.get("finished")
     best = checkpoint.get("best_score")
+    data = checkpoint.get("data")
+    val_count = data.get("val_count") if isinstance(data, Mapping) else None
     return RunStatus(
         out_dir=Path(out_dir),
         epoch=epoch,
@@ -104,6 +121,7 @@ def status_of(checkpoint: Mapping[str, Any], out_dir: str | os.PathLike) -> RunS
         preset=checkpoint.get("preset"),
         best_epoch=int(checkpoint.get("best_epoch", 0)),
         best_score=None if best is None else float(best),
+        has_val=val_count is None or int(val_count) > 0,
     )
 
 

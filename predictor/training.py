@@ -3,7 +3,9 @@
 A run directory holds `config.json` (model, training and data description), `metrics.jsonl`
 (one JSON object per epoch), `last.pt` (everything needed to resume, written after every epoch)
 and `best.pt` (the weights with the lowest validation ADE of the main agents, i.e. the validation
-split's focal agents, fed-back means).
+split's focal agents, fed-back means). A data file without validation scenes trains all the
+same, but nothing selects: best.pt is the last epoch's weights; `train` says so on stderr at the
+start (`NO_VAL_NOTE`) and the summary line says "no validation split".
 
 Determinism: the seed fixes the initial weights (torch RNG), the batch order (the loader's own
 generator) and the rollout samples (torch RNG); what `last.pt` keeps to resume a run bit for bit
@@ -58,8 +60,10 @@ from predictor.run_files import (
     writing,
 )
 from predictor.run_state import (
+    NO_VAL_NOTE,
     ResumeMismatch,
     RunState,
+    best_text,
     build_state,
     check_resume,
     checkpoint_dict,
@@ -81,6 +85,7 @@ def loss_weights(config: TrainConfig) -> LossWeights:
         config.mean_loss,
         config.one_step_needs_previous,
         config.main_agent_weight,
+        config.penalty_linear_from_m,
     )
 
 
@@ -248,14 +253,14 @@ class TrainResult:
     best_score: float | None  # validation ADE [m] of best.pt (main agents)
     final_loss: float | None  # mean training loss of the last epoch run now (None if none ran)
     seconds: float  # wall time of this call
+    has_val: bool = True  # the data had a validation split (False: best.pt is the last epoch)
 
     def summary(self, variant: str) -> str:
         """One-line summary."""
-        best = "n/a" if self.best_score is None else f"{self.best_score:.3f} m"
         loss = "n/a" if self.final_loss is None else f"{self.final_loss:.4f}"
         return (
             f"trained {variant} for {self.epochs} epochs in {self.seconds:.1f} s; final loss "
-            f"{loss}; best val ADE (main agents) {best} at epoch {self.best_epoch}; "
+            f"{loss}; {best_text(self.best_score, self.best_epoch, self.has_val)}; "
             f"run in {self.out_dir}"
         )
 
@@ -324,6 +329,8 @@ def _train(
     except ValueError as err:
         raise RunError(f"{data_path}: {err}") from None
     check_labels(model_cfg, train_set.meta, data_path)
+    if val_set is None:  # always said, progress bar or not: nothing will select the weights
+        print(f"train {train_cfg.variant}: {data_path}: {NO_VAL_NOTE}", file=sys.stderr, flush=True)
     if progress:  # seconds before the bar: the optimiser's first use imports much of torch
         print(
             f"train {train_cfg.variant}: building the model and optimiser on "
@@ -369,6 +376,7 @@ def _train(
         state.best_score,
         final_loss,
         time.perf_counter() - started,
+        has_val=val_set is not None,
     )
 
 

@@ -8,7 +8,9 @@ import pytest
 import torch
 from torch.distributions import MultivariateNormal
 
+from predictor.config import ModelConfig
 from predictor.losses import (
+    PENALTY_MAX_STD_M,
     LossWeights,
     attention_tv,
     compute_loss,
@@ -16,6 +18,7 @@ from predictor.losses import (
     safe_sqrt,
     variance_penalty,
 )
+from predictor.model.head import MAX_LOG_GAIN, SceneFrameHead
 from predictor.outputs import Gaussian2D, ModelOutput
 
 
@@ -53,6 +56,118 @@ def test_variance_penalty_by_hand():
     expected = torch.tensor([2 * math.exp(0.5), math.exp(2.0), 2 * math.exp(0.5)])
     torch.testing.assert_close(got, expected)
     torch.testing.assert_close(variance_penalty(g, tau=0.6), torch.tensor([0, math.exp(2.0), 0]))
+
+
+def diagonal(stds: list[float], dtype=torch.float64) -> Gaussian2D:
+    """Gaussians with both stds equal to each of `stds` (uncorrelated), as a leaf tril."""
+    s = torch.tensor(stds, dtype=dtype)
+    tril = torch.stack([s, torch.zeros_like(s), s], -1).requires_grad_(True)
+    return Gaussian2D(torch.zeros(len(stds), 2, dtype=dtype), tril)
+
+
+def test_linear_penalty_by_hand():
+    """exp(sigma) up to c = 10 m, exp(c) (1 + sigma - c) beyond; tau still gates."""
+    g = diagonal([5e-4, 2.0, 10.0, 12.5, 1e4])
+    got = variance_penalty(g, tau=1e-3, linear_from_m=10.0)
+    e10 = math.exp(10.0)
+    per_std = [0.0, math.exp(2.0), e10, e10 * 3.5, e10 * (1 + 1e4 - 10)]
+    torch.testing.assert_close(got, 2 * torch.tensor(per_std, dtype=torch.float64))
+    # the paper's form (linear_from_m 0) counts stds above 50 m as 50 m
+    capped = variance_penalty(diagonal([60.0]), tau=1e-3)
+    torch.testing.assert_close(capped, torch.tensor([2 * math.exp(PENALTY_MAX_STD_M)]).double())
+
+
+def test_linear_penalty_equals_exp_bit_for_bit_below_its_start():
+    """Value and gradient below c are those of the paper's form exactly (the published runs,
+    whose stds stay below c, train the same weights)."""
+    stds = torch.linspace(1e-4, 9.99, 257, dtype=torch.float32).tolist()
+    a, b = diagonal(stds, torch.float32), diagonal(stds, torch.float32)
+    pa, pb = variance_penalty(a, 1e-3), variance_penalty(b, 1e-3, linear_from_m=10.0)
+    assert torch.equal(pa, pb)
+    (pa * torch.arange(257.0)).sum().backward()
+    (pb * torch.arange(257.0)).sum().backward()
+    assert torch.equal(a.tril.grad, b.tril.grad)
+
+
+def test_linear_penalty_is_c1_with_bounded_slope():
+    """The slope is exp(sigma) below c, exp(c) at and beyond it (continuous), never more."""
+    c = 10.0
+    g = diagonal([c - 1e-6, c, c + 1e-6, 1e3, 1e6])
+    variance_penalty(g, 0.0, linear_from_m=c).sum().backward()
+    slope = g.tril.grad[:, 0]  # d penalty / d sigma_1 (l11 is sigma_1)
+    expected = torch.tensor([math.exp(c - 1e-6)] + [math.exp(c)] * 4, dtype=torch.float64)
+    torch.testing.assert_close(slope, expected, rtol=1e-6, atol=0.0)
+    assert float(slope.max()) <= math.exp(c) * (1 + 1e-12)
+
+
+def extreme_output(raw_cov: tuple[float, float, float], t_obs: int = 2) -> tuple:
+    """A ModelOutput of the real scene-frame head (default ModelConfig, float32) whose raw
+    Cholesky outputs are `raw_cov` for every agent-step, with zero means, for 1 scene of 6 steps
+    and 3 agents; raw tensors are leaves (their .grad after backward)."""
+    head = SceneFrameHead(ModelConfig())
+    raws, gaussians = [], []
+    for steps in (5, 6 - t_obs):
+        raw = torch.zeros(1, steps, 3, 5)
+        raw[..., 2:] = torch.tensor(raw_cov)
+        raw.requires_grad_(True)
+        raws.append(raw)
+        gaussians.append(head.gaussian(raw, torch.zeros(1, steps, 3, 2), None))
+    attention = torch.softmax(torch.randn(1, 5, 3, 2), -1)
+    roll_attention = torch.softmax(torch.randn(1, 6 - t_obs, 3, 2), -1)
+    present = torch.ones(1, 3, dtype=torch.bool)
+    out = ModelOutput(gaussians[0], attention, gaussians[1], roll_attention, present)
+    return out, raws
+
+
+def test_extreme_batch_with_the_largest_stds_has_a_bounded_loss():
+    """The head's largest stds (log gain at MAX_LOG_GAIN: 16.1 km, and with correlation raw 5 a
+    second std sqrt(26) times that) and 1 km errors: with the penalty linear from 10 m the loss
+    is finite, below the bound computed from the terms' maxima, and so are its gradients; the
+    paper's form puts it near beta1 exp(50) ~ 1e20."""
+    torch.manual_seed(0)
+    config = ModelConfig()
+    top = config.min_std_m + (config.init_std_m - config.min_std_m) * math.exp(MAX_LOG_GAIN)
+    positions = torch.full((1, 6, 3, 2), 1e3)
+    valid = torch.ones(1, 6, 3, dtype=torch.bool)
+    weights = LossWeights(penalty_linear_from_m=10.0)
+    out, raws = extreme_output((1e3, 1e3, 5.0))
+    torch.testing.assert_close(
+        out.one_step.stds()[0, 0, 0].double(),
+        torch.tensor([top, top * math.sqrt(26)], dtype=torch.float64),
+        rtol=1e-5,
+        atol=0.0,
+    )
+    loss, terms = compute_loss(out, positions, valid, 2, weights)
+    loss.backward()
+    e10 = math.exp(10.0)
+    var_max = e10 * (1 + top - 10) + e10 * (1 + top * math.sqrt(26) - 10)
+    # NLL <= 0.5 |L^-1 d|^2 + log(l11 l22) + log 2 pi, |L^-1 d| <= |d| (1 + |c|) / l_min
+    nll_max = (
+        0.5 * (math.hypot(1e3, 1e3) * 6 / top) ** 2 + 2 * math.log(top) + math.log(2 * math.pi)
+    )
+    bound = 2 * (nll_max + weights.beta1 * var_max + weights.beta2 * math.sqrt(2))
+    assert math.isfinite(terms["loss"]) and 0 < terms["loss"] <= bound * (1 + 1e-5)
+    assert bound < 1e8
+    assert all(torch.isfinite(raw.grad).all() for raw in raws)
+    _, paper = compute_loss(extreme_output((1e3, 1e3, 5.0))[0], positions, valid, 2, LossWeights())
+    assert paper["loss"] > 1e19
+
+
+def test_extreme_batch_with_the_smallest_stds_has_a_finite_loss_and_gradient():
+    """The NLL is left as the likelihood: at the std floor (1 mm) a 1 km miss per axis costs
+    0.5 (2 * 1e6^2) - 2 log(1e-3) + log 2 pi nats, finite in float32 (the floor bounds it), with
+    finite gradients, which training clips per parameter group (`grad_clip_norm`)."""
+    torch.manual_seed(0)
+    positions = torch.full((1, 6, 3, 2), 1e3)
+    valid = torch.ones(1, 6, 3, dtype=torch.bool)
+    out, raws = extreme_output((-1e3, -1e3, 0.0))
+    loss, terms = compute_loss(out, positions, valid, 2, LossWeights(penalty_linear_from_m=10.0))
+    loss.backward()
+    nll = 0.5 * 2 * 1e6**2 - 2 * math.log(1e-3) + math.log(2 * math.pi)
+    assert terms["nll"] == pytest.approx(nll, rel=1e-5)
+    assert terms["nll_seq"] == pytest.approx(nll, rel=1e-5)
+    assert terms["var"] == pytest.approx(0.0)  # 1 mm is tau: not above it
+    assert all(torch.isfinite(raw.grad).all() for raw in raws)
 
 
 def test_total_variation_by_hand():

@@ -406,3 +406,35 @@ def test_bucketing_changes_nothing_where_every_scene_has_the_same_agent_count(
     train(braking_file, model_cfg, train_cfg, tmp_path / "bucketed", progress=False)
     train(braking_file, plain[0], plain[1], tmp_path / "plain", progress=False)
     assert_same_weights(weights(tmp_path / "bucketed"), weights(tmp_path / "plain"))
+
+
+def test_a_run_without_validation_scenes_says_so(tmp_path: Path, capsys):
+    """No val split: one line on stderr at the start, best.pt is the last epoch's weights, and
+    the summaries (the run's and a finished run's status) say "no validation split"."""
+    from predictor.run_state import run_status
+
+    data = write_braking_dataset(tmp_path / "no_val.h5", counts=(6, 0, 2))
+    model_cfg, train_cfg = tiny_configs(epochs=2)
+    result = train(data, model_cfg, train_cfg, tmp_path / "run", progress=False)
+    err = capsys.readouterr().err.splitlines()
+    said = [line for line in err if "no validation split" in line]
+    assert len(said) == 1 and "best.pt is the last epoch" in said[0] and str(data) in said[0]
+    summary = result.summary("ours")
+    assert "no validation split (best.pt is the last epoch, 2)" in summary
+    assert "n/a" not in summary
+    best = torch.load(tmp_path / "run" / "best.pt", weights_only=True)
+    last = torch.load(tmp_path / "run" / "last.pt", weights_only=True)
+    assert best["epoch"] == last["epoch"] == 2 and best["best_score"] is None
+    for name, tensor in last["model_state"].items():
+        assert torch.equal(best["model_state"][name], tensor), name
+    status = run_status(tmp_path / "run").summary()
+    assert "no validation split" in status and "n/a" not in status
+
+
+def test_a_run_with_validation_scenes_reports_its_best_ade(
+    braking_file: Path, tmp_path: Path, capsys
+):
+    model_cfg, train_cfg = tiny_configs(epochs=1)
+    result = train(braking_file, model_cfg, train_cfg, tmp_path / "run", progress=False)
+    assert "no validation split" not in capsys.readouterr().err
+    assert f"best val ADE (main agents) {result.best_score:.3f} m at epoch 1" in result.summary("x")
