@@ -244,7 +244,14 @@ def evaluate_run(
         stages.stage("predictions" + (f" and {sampling.k} samples" if sampling.k else ""))
         batch, num_observed = dataset.all(), dataset.meta.num_observed
         forecast = forecast_model(
-            model, batch, num_observed, sampling.k, sampling.seed, batch_size, stages.advance
+            model,
+            batch,
+            num_observed,
+            sampling.k,
+            sampling.seed,
+            batch_size,
+            stages.advance,
+            method=sampling.method,
         )
         pred_mean, attention = forecast.pred_mean, forecast.attention
 
@@ -265,7 +272,11 @@ def evaluate_run(
         epoch=int(stored["epoch"]),
         train_data=str(stored["data"]["path"]),
     )
-    method = "modes" if model.modes is not None else "sampled rollout (the paper's)"
+    method = {
+        "marginal": "one draw per future through its steps' Gaussians",
+        "rollout": ("sampled rollout (the paper's)"),
+    }[sampling.method]
+    method = f"a mode by its weight, then {method}" if model.modes is not None else method
     evaluation = _evaluation(
         dataset,
         variant,

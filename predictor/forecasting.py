@@ -22,7 +22,7 @@ from predictor.baselines import (
 )
 from predictor.metrics import attention_accuracy, displacement_metrics, prediction_mask
 from predictor.model import SmoothAttentionPredictor
-from predictor.outputs import expand_attention
+from predictor.outputs import TrajectoryMixture, expand_attention
 from predictor.predictions import Predictions
 from predictor.probabilistic import gaussian_nll, kde_nll, sample_metrics
 from trajectory_data.format import DatasetMeta, TrajectorySet
@@ -31,6 +31,9 @@ from trajectory_data.torch_dataset import Batch
 
 class EvaluationError(ValueError):
     """An evaluation cannot be done as asked (empty split, data of another kind); one line."""
+
+
+SAMPLE_METHODS = ("marginal", "rollout")
 
 
 @dataclass(frozen=True)
@@ -42,8 +45,18 @@ class SampleSettings:
     k: int = 20
     miss_threshold_m: float = 2.0  # [m] a best final error above it is a miss (Argoverse's 2 m)
     seed: int = 0  # of the draws: the same seed and arguments give the same samples
+    # how a model with one Gaussian per step samples: "marginal", a standard normal draw per
+    # future shared by its steps, mean_t + L_t eps (each step's samples follow the predicted
+    # Gaussian, and a future is as smooth as the mean); "rollout", the paper's sampled rollout,
+    # feeding back a draw at every step (a random walk of the per-step spreads). Models with
+    # trajectory modes draw a mode, then as "marginal".
+    method: str = "marginal"
 
     def __post_init__(self) -> None:
+        if self.method not in SAMPLE_METHODS:
+            raise EvaluationError(
+                f"unknown sampling method {self.method!r}; choose from {', '.join(SAMPLE_METHODS)}"
+            )
         if self.k < 0:
             raise EvaluationError(f"the number of samples must be >= 0, got {self.k}")
         if not (math.isfinite(self.miss_threshold_m) and self.miss_threshold_m > 0):
@@ -89,12 +102,13 @@ def forecast_model(
     batch_size: int = 32,
     on_batch: Callable[[int], None] | None = None,
     nll: bool = True,
+    method: str = "marginal",
 ) -> Forecast:
     """`predict_model`'s predictions plus, with `nll`, each predicted step's negative log
     density of the truth under the model's distribution (its Gaussian, or with trajectory modes
     their mixture; closed form) and `num_samples` sampled futures per scene: drawn from the
-    modes (`TrajectoryMixture.sample`) or, with one Gaussian, by the paper's sampled rollout
-    (`SmoothAttentionPredictor.sample_rollouts`), seeded by `seed` and the batch.
+    modes (`TrajectoryMixture.sample`) or, with one Gaussian, by `method` (`SampleSettings`;
+    "rollout": `SmoothAttentionPredictor.sample_rollouts`), seeded by `seed` and the batch.
 
     Each batch is cut to the agent slots present in it (memory and time follow the agents
     present, not the file's padded maximum), and its outputs padded back to N.
@@ -130,6 +144,13 @@ def forecast_model(
             generator = torch.Generator(device=positions.device).manual_seed(seed + number)
             if out.modes is not None:
                 drawn = out.modes.sample(num_samples, generator)
+            elif method == "marginal":
+                one = TrajectoryMixture(
+                    torch.zeros_like(out.rollout.mean[:, 0, :, :1]),  # log 1: one mode
+                    out.rollout.mean.unsqueeze(-2),
+                    out.rollout.tril.unsqueeze(-2),
+                )
+                drawn = one.sample(num_samples, generator)
             else:
                 with torch.random.fork_rng(devices=[]):
                     torch.manual_seed(int(torch.randint(2**62, (), generator=generator)))

@@ -60,6 +60,9 @@ PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
             "mean_loss": "displacement",
             "one_step_needs_previous": True,
             "main_agent_weight": 5.0,
+            # the variance penalty linear beyond 10 m (finite loss; the means, trained by
+            # displacement with the covariance detached, are untouched by it)
+            "penalty_linear_from_m": 10.0,
         },
     ),
 }

@@ -58,7 +58,7 @@ from predictor.evaluation import (
     evaluate_baseline,
     evaluate_run,
 )
-from predictor.forecasting import EvaluationError, SampleSettings
+from predictor.forecasting import SAMPLE_METHODS, EvaluationError, SampleSettings
 from trajectory_data.format import FormatError
 
 
@@ -121,6 +121,13 @@ def parse_args(argv: list[str] | None = None):
         type=int,
         default=defaults.seed,
         help=f"seed of the samples (default {defaults.seed})",
+    )
+    parser.add_argument(
+        "--sampler",
+        choices=SAMPLE_METHODS,
+        default=defaults.method,
+        help=f"how a model with one Gaussian per step samples (default {defaults.method}: one "
+        "draw per future through every step's Gaussian; rollout: the paper's sampled rollout)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--batch-size", type=int, default=32, help="scenes per forward pass")
@@ -226,7 +233,7 @@ def evaluate(args) -> Evaluation:
     Ctrl-C."""
     progress = not args.no_progress
     try:
-        sampling = SampleSettings(args.samples, args.miss_threshold, args.seed)
+        sampling = SampleSettings(args.samples, args.miss_threshold, args.seed, args.sampler)
         if args.baseline:
             return evaluate_baseline(
                 args.baseline, args.data, args.split, progress=progress, sampling=sampling
