@@ -110,7 +110,7 @@ def forecast_model(
     modes (`TrajectoryMixture.sample`) or, with one Gaussian, by `method` (`SampleSettings`;
     "rollout": `SmoothAttentionPredictor.sample_rollouts`), seeded by `seed` and the batch.
 
-    Each batch is cut to the agent slots present in it (memory and time follow the agents
+    Each batch is cut to the agent slots observed in it (memory and time follow the agents
     present, not the file's padded maximum), and its outputs padded back to N.
     """
     num_agents, num_steps = batch.num_agents, batch.num_steps
@@ -124,7 +124,7 @@ def forecast_model(
     batch = batch.to(next(model.parameters()).device)  # where the model is (training: its device)
     for number, start in enumerate(range(0, n, batch_size)):
         rows = slice(start, min(start + batch_size, n))
-        width = _present_width(batch.valid[rows])
+        width = _present_width(batch.valid[rows, :num_observed])
         positions = batch.positions[rows, :, :width]
         valid = batch.valid[rows, :, :width]
         labels = batch.attention[rows, :, :width]
@@ -164,8 +164,9 @@ def forecast_model(
 
 
 def _present_width(valid: torch.Tensor) -> int:
-    """1 + the last agent slot present at any step of any scene of `valid` (b, T, N), at
-    least 1."""
+    """1 + the last agent slot present at any step of any scene of `valid` (b, T_obs, N), at
+    least 1: the slots after it are predicted as absent (zeros), which they are to a model
+    that reads the observed steps alone."""
     present = valid.any(dim=1).any(dim=0).nonzero()
     return int(present.max()) + 1 if len(present) else 1
 
