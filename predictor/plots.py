@@ -291,7 +291,8 @@ def _scene_name(pred: Predictions, index: int) -> str:
 
 
 def plot_predictions(pred: Predictions, index: int) -> Figure:
-    """True trajectories of scene `index` as grey lines, predicted means as dots sized by time."""
+    """True trajectories of scene `index` as grey lines, predicted means as dots sized by time,
+    and the sampled futures (if the predictions hold any) as thin lines in the agents' colours."""
     _check_index(pred, index)
     pred_steps = pred.num_observed + np.arange(pred.pred_mean.shape[1])  # (T_pred,)
     present = pred.valid[index][pred_steps]  # (T_pred, N)
@@ -315,6 +316,7 @@ def plot_predictions(pred: Predictions, index: int) -> Figure:
         markersize=8,
         zorder=4,
     )
+    drawn_samples = _draw_samples(ax, pred, index)
     _draw_dots(
         ax,
         pred.pred_mean[index],
@@ -326,9 +328,10 @@ def plot_predictions(pred: Predictions, index: int) -> Figure:
     )
     _style_road_axes(ax)
     missing = f"; {not_finite} predicted points not finite, not drawn" if not_finite else ""
+    sampled = f", {pred.num_samples} sampled futures (thin lines)" if drawn_samples else ""
     ax.set_title(
         f"{_scene_name(pred, index)}: predicted means (dots, size grows "
-        f"with time) vs truth (grey lines){missing}",
+        f"with time){sampled} vs truth (grey lines){missing}",
         fontsize="small",
     )
     handles = _role_handles(pred.role_names, " (predicted)")
@@ -338,6 +341,35 @@ def plot_predictions(pred: Predictions, index: int) -> Figure:
     ]
     legend_below(fig, handles)
     return fig
+
+
+def _draw_samples(ax: Axes, pred: Predictions, index: int) -> bool:
+    """Each predicted agent's sampled futures of scene `index`, from its last observed position,
+    as thin translucent lines of its role's colour (under the means); False if none."""
+    if not pred.num_samples:
+        return False
+    last = pred.num_observed - 1
+    predicted = pred.valid[index, last]  # (N,) agents predicted
+    start = pred.true_xy[index, last]  # (N, 2)
+    drawn = False
+    for agent in np.flatnonzero(predicted):
+        paths = pred.samples[index, :, :, agent]  # (K, T_pred, 2)
+        paths = np.concatenate([np.broadcast_to(start[agent], (len(paths), 1, 2)), paths], 1)
+        finite = np.isfinite(paths).all(axis=(1, 2))
+        if not finite.any():
+            continue
+        name = pred.role_names[pred.roles[index, agent]]
+        color = role_color(name, int(pred.roles[index, agent]))
+        ax.plot(
+            paths[finite, :, 0].T,
+            paths[finite, :, 1].T,
+            color=color,
+            linewidth=0.6,
+            alpha=0.25,
+            zorder=2,
+        )
+        drawn = True
+    return drawn
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:

@@ -6,6 +6,7 @@ import errno
 import os
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -411,3 +412,23 @@ def test_plot_tool_refuses_an_unwritable_directory_before_drawing(
         plot.main(["predictions", str(pred), "--out", str(tmp_path / "pred.png")])
     assert exit_info.value.code == 2
     assert capsys.readouterr().err == f"error: cannot write in output directory {tmp_path}\n"
+
+
+def test_prediction_figure_draws_each_predicted_agents_samples() -> None:
+    pred = make_predictions(n=2)
+    assert plot_predictions(pred, 0).axes[0].get_lines()  # truth only: no sample lines
+    rng = np.random.default_rng(0)
+    k, steps = 3, pred.pred_mean.shape[1]
+    samples = pred.pred_mean[:, None] + rng.normal(0, 0.5, (2, k, *pred.pred_mean.shape[1:]))
+    with_samples = replace(pred, samples=samples)
+    ax = plot_predictions(with_samples, 1).axes[0]
+    assert f"{k} sampled futures" in ax.get_title()
+    last = pred.num_observed - 1
+    agents = np.flatnonzero(pred.valid[1, last])
+    thin = [line for line in ax.get_lines() if line.get_linewidth() == 0.6]
+    assert len(thin) == k * len(agents)
+    # each line starts at the agent's last observed position and follows one sampled future
+    first = thin[0].get_xydata()
+    np.testing.assert_allclose(first[0], pred.true_xy[1, last, agents[0]], rtol=1e-6)
+    np.testing.assert_allclose(first[1:], samples[1, 0, :, agents[0]], rtol=1e-6)
+    assert len(first) == steps + 1
