@@ -40,7 +40,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from predictor.config import ModelConfig, resolve_roles  # noqa: E402
-from predictor.evaluation import predict_model  # noqa: E402
+from predictor.forecasting import predict_model  # noqa: E402
 from predictor.model import SmoothAttentionPredictor  # noqa: E402
 from predictor.presets import make_configs  # noqa: E402
 from predictor.run_state import make_optimizer  # noqa: E402

@@ -28,7 +28,7 @@ from browser import find_chromium, launch, open_page  # noqa: E402
 
 from pipeline.generation import GenerateConfig, generate_dataset  # noqa: E402
 from pipeline.viewer import make_viewer  # noqa: E402
-from predictor.evaluation import predict_model  # noqa: E402
+from predictor.forecasting import predict_model  # noqa: E402
 from predictor.model import SmoothAttentionPredictor  # noqa: E402
 from predictor.predictions import Predictions  # noqa: E402
 from predictor.presets import make_configs  # noqa: E402

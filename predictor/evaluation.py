@@ -33,7 +33,6 @@ from predictor.forecasting import (
     SampleSettings,
     fit_baseline,
     forecast_model,
-    predict_model,
     score,
 )
 from predictor.metrics import (
@@ -257,7 +256,17 @@ def evaluate_run(
 
         def predict(states: np.ndarray, valid: np.ndarray) -> np.ndarray:
             moved = replace(batch, states=torch.from_numpy(states), valid=torch.from_numpy(valid))
-            return predict_model(model, moved, num_observed, batch_size, stages.advance)[0]
+            return forecast_model(
+                model,
+                moved,
+                num_observed,
+                0,
+                0,
+                batch_size,
+                stages.advance,
+                nll=False,
+                attention=False,
+            ).pred_mean
 
         stages.stage("one-step error")
         diagnostics = {"one_step": one_step_errors(model, batch, num_observed, batch_size)}

@@ -155,8 +155,11 @@ def attention_hits(
     valid (n, T, N) bool. Returns three (n,) arrays (see the module docstring).
     """
     steps = slice(num_observed, attention.shape[1])  # t = T_obs .. T-2
-    theta = attention[:, steps]  # (n, S, N, N)
     label = labels[:, steps]  # (n, S, N)
+    if not (label >= 0).any():  # nothing labelled (real data): no copy of the attention
+        zeros = np.zeros(len(labels), dtype=np.int64)
+        return zeros, zeros, np.zeros(len(labels))
+    theta = attention[:, steps]  # (n, S, N, N)
     keep = (
         (label >= 0)
         & interaction[:, steps, None]
@@ -187,7 +190,7 @@ def attention_accuracy(
     for constant velocity) and count. Only labelled agents count, so in practice the main agents.
     """
     hits, counts, weights = attention_hits(attention, labels, interaction, valid, num_observed)
-    undefined = bool(np.isnan(attention).any())
+    undefined = bool(counts.any()) and bool(np.isnan(attention).any())
     case = np.asarray(case)
 
     def pool(rows: np.ndarray) -> dict:

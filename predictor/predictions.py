@@ -80,7 +80,9 @@ class Predictions:
         for name in _NAMES:
             object.__setattr__(self, name, tuple(str(s) for s in getattr(self, name)))
         for name, (_, dtype) in _ARRAYS.items():
-            object.__setattr__(self, name, np.asarray(getattr(self, name)).astype(dtype))
+            # no copy of an array already of its dtype (a split's attention can be ~1 GB)
+            value = np.asarray(getattr(self, name)).astype(dtype, copy=False)
+            object.__setattr__(self, name, value)
         object.__setattr__(self, "num_observed", int(self.num_observed))
         object.__setattr__(self, "dt", float(self.dt))
         self._check()

@@ -118,6 +118,9 @@ def kde_nll(
     return out
 
 
+SCENE_CHUNK = 64  # scenes whose sample errors are held at once (memory, not results)
+
+
 def _gather(array: np.ndarray, slots: np.ndarray, axis: int) -> np.ndarray:
     """The agents `slots` (n, A) of each scene along `axis` of an (n, ...) array."""
     shape = [1] * array.ndim
@@ -133,10 +136,14 @@ def _parts(
     miss_threshold_m: float,
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Per scene (sum, count) of each metric. samples (n, K, T, A, 2), true/keep/nll (n, T, A)."""
-    dist = np.linalg.norm(samples - true[:, None], axis=-1)  # (n, K, T, A)
-    dist = np.where(keep[:, None], dist, 0.0)
-    min_sum = dist.sum(axis=2).min(axis=1)  # (n, A): best sample's summed error
-    min_final = dist[:, :, -1].min(axis=1)  # (n, A)
+    min_sum = np.zeros(keep.shape[::2])  # (n, A): best sample's summed error
+    min_final = np.zeros(keep.shape[::2])  # (n, A)
+    for start in range(0, len(samples), SCENE_CHUNK):  # a chunk's (k, K, T, A) errors at a time
+        rows = slice(start, start + SCENE_CHUNK)
+        dist = np.linalg.norm(samples[rows] - true[rows, None], axis=-1)  # (k, K, T, A)
+        dist = np.where(keep[rows, None], dist, 0.0)
+        min_sum[rows] = dist.sum(axis=2).min(axis=1)
+        min_final[rows] = dist[:, :, -1].min(axis=1)
     final = keep[:, -1]  # (n, A)
     final_count = final.sum(axis=-1)
     parts = {
