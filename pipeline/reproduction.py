@@ -195,6 +195,8 @@ def evaluate_job(job: Job) -> None:
         "code": code_version(),
         **extra,
     }
+    if evaluation.sampling is not None:  # K, seed, miss threshold and method of the samples
+        info["sampling"] = evaluation.sampling
     if job.save_scenes:
         rows = figure_scenes(predictions.case, predictions.interaction, len(meta.case_names))
         with atomic_output(directory / "scenes.npz") as temp:

@@ -70,6 +70,44 @@ def hand_runs() -> list[RunRecord]:
     ]
 
 
+def with_samples(result: dict, seed: int, k: int = 20, threshold: float | None = 2.0) -> dict:
+    """`result` scored on K samples too, as predictor.forecasting.score writes it: in every
+    entry of both groups minADE = ADE / 2, minFDE = FDE / 2, miss rate 0.2 + 0.1 seed and NLL
+    -1 + 3 seed; the eval.json's sampling record names the miss threshold (None: no record)."""
+    out = {**result}
+    for group in ("main_agents", "all_agents"):
+        entries = {"overall": result[group]["overall"], **result[group]["cases"]}
+        scored = {
+            name: {
+                **entry,
+                "min_ade": entry["ade"] / 2,
+                "min_fde": entry["fde"] / 2,
+                "miss_rate": 0.2 + 0.1 * seed,
+                "nll": -1.0 + 3.0 * seed,
+                "k": k,
+            }
+            for name, entry in entries.items()
+        }
+        overall = scored.pop("overall")
+        out[group] = {"overall": overall, "cases": scored}
+    if threshold is not None:
+        out["sampling"] = {"k": k, "seed": 0, "miss_threshold_m": threshold, "method": "m"}
+    return out
+
+
+def sampled_runs() -> list[RunRecord]:
+    """hand_runs with samples in both Ours seeds and S-Attn's seed 0 (not its seed 1), and none
+    in Const-Vel's run."""
+    runs = []
+    for run, (v, s) in zip(hand_runs(), [("ours", 0), ("ours", 1), ("s_attn", 0), ("s_attn", 1)]):
+        ade = {r: run.values[Measure("ade", r)] for r in ("major", "minor")}
+        result = fake_eval(ade, {r: 2 * a for r, a in ade.items()})
+        if (v, s) != ("s_attn", 1):
+            result = with_samples(result, s)
+        runs.append(RunRecord.from_eval("hc_go", v, s, result))
+    return runs + [hand_runs()[4]]
+
+
 # ---------------------------------------------------------------------------------- records
 def test_records_map_case_names_to_major_and_minor():
     run = hand_runs()[0]
@@ -88,6 +126,40 @@ def test_run_json_keeps_the_results_json_layout():
     assert document["attention_accuracy"] == {"major": 0.5, "minor": 0.5, "overall": 0.5}
     assert document["case_names"] == {"major": "go", "minor": "stop"}
     assert (document["setting"], document["variant"], document["seed"]) == ("hc_go", "ours", 1)
+
+
+def test_a_run_scored_on_samples_records_them_and_an_older_one_none():
+    from predictor.forecasting import SAMPLE_KEYS
+
+    assert set(records.SAMPLED) | {"k"} == set(SAMPLE_KEYS)  # every score but K is a measure
+    old = hand_runs()[1]
+    run = sampled_runs()[1]  # ours seed 1: ADE major 3, minor 4
+    assert set(run.values) == set(MEASURES) | set(records.SAMPLE_MEASURES)
+    assert run.values[Measure("min_ade", "major")] == 1.5
+    assert run.values[Measure("min_fde", "minor")] == 4.0
+    assert run.values[Measure("min_ade", "minor", "all_agents")] == pytest.approx(0.2)
+    assert run.values[Measure("miss_rate", "overall")] == pytest.approx(0.3)
+    assert run.values[Measure("nll", "major", "all_agents")] == 2.0
+    assert (run.sample_k, run.miss_threshold_m) == (20, 2.0)
+    assert (old.sample_k, old.miss_threshold_m) == (None, None)
+    document, before = run.to_json(), old.to_json()
+    assert document["main_agents"]["major"] == {
+        "ade": 3.0,
+        "fde": 6.0,
+        "min_ade": 1.5,
+        "min_fde": 3.0,
+        "miss_rate": pytest.approx(0.3),
+        "nll": 2.0,
+    }
+    assert (document["sample_k"], document["miss_threshold_m"]) == (20, 2.0)
+    assert set(document) - set(before) == {"sample_k", "miss_threshold_m"}
+    assert "sample_k" not in before and "min_ade" not in str(before)  # listed as it always was
+    unrecorded = RunRecord.from_eval(
+        "hc_go", "ours", 0, with_samples(fake_eval(*ADE_FDE), 0, 5, None)
+    )
+    assert (unrecorded.sample_k, unrecorded.miss_threshold_m) == (5, None)
+    no_samples = with_samples(fake_eval(*ADE_FDE), 0, k=0)  # K = 0: nothing sampled
+    assert set(RunRecord.from_eval("hc_go", "ours", 0, no_samples).values) == set(MEASURES)
 
 
 # ---------------------------------------------------------------------------------- statistics
@@ -121,6 +193,30 @@ def test_aggregates_of_hand_made_runs():
     assert results.summary("hc_go", "const_vel")[MINOR_ADE] == Summary(9.0, None, 1)
     assert results.summary("hc_go", "nonsmooth") is None
     assert results.has_setting("hc_go") and not results.has_setting("hc_stop")
+
+
+def test_sampled_measures_are_summarised_over_the_runs_that_have_them():
+    results = statistics.analyse(sampled_runs())
+    ours, s_attn = results.summary("hc_go", "ours"), results.summary("hc_go", "s_attn")
+    assert ours[Measure("min_ade", "major")] == Summary(1.0, math.sqrt(0.5), 2)  # 0.5 and 1.5
+    assert ours[Measure("nll", "minor")] == Summary(0.5, pytest.approx(3 / math.sqrt(2)), 2)
+    assert s_attn.runs == 2 and s_attn[Measure("min_fde", "major")] == Summary(5.0, None, 1)
+    assert s_attn[MAJOR_ADE] == Summary(6.0, math.sqrt(2.0), 2)  # ADE/FDE: both seeds
+    plain = statistics.analyse(hand_runs())
+    assert set(results.summary("hc_go", "const_vel").summaries) == set(MEASURES)
+    assert set(plain.summary("hc_go", "ours").summaries) == set(MEASURES)
+    assert plain.summary("hc_go", "ours").to_json() == {
+        key: value
+        for key, value in ours.to_json().items()
+        if key not in ("main_agents", "all_agents")
+    } | {
+        group: {
+            case: {m: cell for m, cell in cells.items() if m in records.METRICS}
+            for case, cells in ours.to_json()[group].items()
+        }
+        for group in ("main_agents", "all_agents")
+    }
+    assert results.comparisons.keys() == plain.comparisons.keys()
 
 
 def test_comparisons_of_hand_made_runs():
@@ -234,6 +330,58 @@ def test_results_table_with_attention_columns():
     assert lines[2].count("0.250 ± 0.000") == 2 and lines[2].count("0.50 ± 0.00") == 2
     assert lines[3] == "| Const-Vel | 9.000 | 18.000 | 9.000 | 18.000 | n/a | n/a | n/a | n/a | 1 |"
     assert len(lines) == 4  # nonsmooth was not run
+
+
+def section(runs: list[RunRecord]) -> str:
+    """The `hc_go` section of a report of `runs` (Ours, S-Attn, NonSmooth, Const-Vel)."""
+    from types import SimpleNamespace
+
+    report = SimpleNamespace(
+        results=statistics.analyse(runs),
+        input=SimpleNamespace(
+            protocol=SimpleNamespace(variants=("ours", "s_attn", "nonsmooth", "const_vel"))
+        ),
+        datasets={"hc_go": SimpleNamespace(case_names=CaseNames("go", "stop"))},
+        figures={},
+    )
+    return "\n".join(markdown.setting_section(report, SETTING_BY_NAME["hc_go"]))
+
+
+def test_a_setting_with_samples_shows_their_table_and_one_without_none():
+    """Ours: minADE 0.5, 1.5 (major), 1, 2 (minor); minFDE twice that; miss rate 0.2, 0.3; NLL
+    -1, 2. S-Attn: seed 0 alone (minADE 2.5, 4; miss 0.2, NLL -1); Const-Vel: no samples."""
+    plain, sampled = section(hand_runs()), section(sampled_runs())
+    for word in ("minADE", "minFDE", "miss rate", "NLL", "Sampled", "samples"):
+        assert word not in plain
+    lead = next(line for line in sampled.splitlines() if line.startswith("Sampled futures"))
+    assert "K = 20 per car" in lead and "above 2 m" in lead
+    lines = sampled.splitlines()
+    start = lines.index(lead)
+    header, rows = lines[start + 2], lines[start + 4 : start + 6]
+    assert header == (
+        "| variant | major (go) minADE_20 | major (go) minFDE_20 | major (go) miss rate | "
+        "major (go) NLL | minor (stop) minADE_20 | minor (stop) minFDE_20 | minor (stop) miss "
+        "rate | minor (stop) NLL | runs |"
+    )
+    assert rows == [
+        "| Ours | 1.000 ± 0.707 | 2.000 ± 1.414 | 0.25 ± 0.07 | 0.50 ± 2.12 | 1.500 ± 0.707 | "
+        "3.000 ± 1.414 | 0.25 ± 0.07 | 0.50 ± 2.12 | 2 |",
+        "| S-Attn | 2.500 | 5.000 | 0.20 | -1.00 | 4.000 | 8.000 | 0.20 | -1.00 | 1 |",
+    ]
+    assert lines[start + 6] == ""  # Const-Vel and NonSmooth have no row
+    block = "\n".join(lines[start : start + 6]) + "\n\n"
+    assert sampled.count(block) == 1 and sampled.replace(block, "") == plain  # else unchanged
+    assert (
+        markdown.sample_section(statistics.analyse(hand_runs()), "hc_go", ("ours",), None) is None
+    )
+    mixed = sampled_runs()[:2] + [
+        RunRecord.from_eval("hc_go", "s_attn", 0, with_samples(fake_eval(*ADE_FDE), 0, 5, None))
+    ]
+    text = markdown.sample_section(
+        statistics.analyse(mixed), "hc_go", ("ours", "s_attn"), CaseNames("go", "stop")
+    )
+    assert "K = 5, 20 per car" in text and "| major (go) minADE_K |" in text
+    assert "the evaluation's threshold (2 m by default)" in text
 
 
 def test_bar_table_against_the_better_oracle_ridge_and_constant_velocity():

@@ -122,8 +122,8 @@ def test_quick_run_writes_markdown_with_tables(quick):
         ours = [line for line in lines if line.startswith(f"| `{setting}` | Ours ")]
         bar = [line for line in ours if "| major |" in line or "| minor |" in line]
         assert len(ours) - len(bar) == 4  # the claims table's rows
-    # main-car and all-agent tables
-    assert sum(line.startswith("| Ours | ") for line in lines) == 2 * len(SETTINGS)
+    # main-car and all-agent tables, and the main cars' sampled scores (runs evaluate K = 20)
+    assert sum(line.startswith("| Ours | ") for line in lines) == 3 * len(SETTINGS)
     for case in ("major", "minor"):  # the bar: Ours (and Ours [paper]) against the oracle ridges
         for model, settings in (("Ours", SETTINGS), ("Ours [paper]", ("dm_r0.3", "hc_stop"))):
             rows = [f"| `{s}` | {model} | {case} | " for s in settings]
@@ -227,6 +227,41 @@ def test_results_json_has_every_setting_variant_and_seed(quick):
     assert {r["graph_step"] for r in runs if r["variant"] in BASELINE_VARIANTS} == {None}
     trained = len(runs) - len(SETTINGS) * len(BASELINE_VARIANTS)
     assert f"rounding, one row): eager ({trained} runs)" in quick["results"].read_text()
+
+
+def test_the_sampled_scores_of_each_runs_eval_json_are_in_the_report(quick):
+    """hc_go's table of sampled scores gives mean ± std over Ours' two seeds of what their
+    eval.json files hold; results.json lists them per run and aggregated."""
+    files = [
+        json.loads(path.read_text())
+        for path in sorted(
+            (quick["cache"] / "runs").glob("halting_car_*_go-major_*/ours/*/eval.json")
+        )
+    ]
+    assert len(files) == 2 and all(f["sampling"]["k"] == 20 for f in files)
+    assert all(f["sampling"]["miss_threshold_m"] == 2.0 for f in files)
+    text = quick["results"].read_text()
+    lines = text.split("### `hc_go`")[1].split("\n### ")[0].splitlines()
+    lead = next(line for line in lines if line.startswith("Sampled futures of the main cars"))
+    assert "K = 20 per car" in lead and "above 2 m" in lead
+    table = lines[lines.index(lead) + 2 :]
+    assert table[0].startswith("| variant | major (go) minADE_20 | major (go) minFDE_20 |")
+    row = next(line for line in table if line.startswith("| Ours | ")).split(" | ")
+    digits = {"min_ade": 3, "min_fde": 3, "miss_rate": 2, "nll": 2}
+    for k, (case, metric) in enumerate(
+        (case, metric) for case in ("go", "stop") for metric in digits
+    ):
+        seeds = [f["main_agents"]["cases"][case][metric] for f in files]
+        mean, std, d = np.mean(seeds), np.std(seeds, ddof=1), digits[metric]
+        assert row[1 + k] == f"{mean:.{d}f} ± {std:.{d}f}"
+    assert row[-1] == "2 |"
+    consts = next(line for line in table if line.startswith("| Const-Vel | "))
+    assert consts.endswith("| 1 |")  # the baselines sample too (CVM-S)
+    runs = [r for r in quick["json"]["runs"] if (r["setting"], r["variant"]) == ("hc_go", "ours")]
+    assert {r["sample_k"] for r in runs} == {20}
+    aggregate = quick["json"]["aggregates"]["hc_go"]["ours"]["main_agents"]["major"]["min_fde"]
+    per_seed = [f["main_agents"]["cases"]["go"]["min_fde"] for f in files]
+    assert aggregate["mean"] == pytest.approx(np.mean(per_seed)) and aggregate["n"] == 2
 
 
 def test_results_json_aggregates_match_the_runs(quick):

@@ -16,6 +16,7 @@ from pipeline.report.records import (
     HEADLINE,
     METRICS,
     ORACLE_BASELINES,
+    SAMPLED,
     CaseNames,
     ClaimRow,
     Group,
@@ -105,6 +106,58 @@ def results_table(
             ]
         rows.append(row + [str(summary.runs)])
     return table(header + ["runs"], rows)
+
+
+SAMPLED_NAMES = {"min_ade": "minADE", "min_fde": "minFDE", "miss_rate": "miss rate", "nll": "NLL"}
+SAMPLED_DIGITS = {"min_ade": 3, "min_fde": 3, "miss_rate": 2, "nll": 2}
+
+
+def sample_section(
+    results: Results, setting: str, variants: Sequence[str], names: CaseNames
+) -> str | None:
+    """The headline group's scores of sampled futures per case (minADE_K and minFDE_K [m],
+    miss rate, NLL [nats]), mean ± std over each variant's runs that have them, with a line
+    saying what they are; None where no run of the setting was scored on samples (runs stored
+    before sampling existed), so the report shows nothing of them."""
+    rows, ks, thresholds = [], set(), set()
+    for variant in variants:
+        summary = results.summary(setting, variant)
+        sampled = [
+            run
+            for run in results.runs
+            if run.setting == setting and run.variant == variant and run.sample_k is not None
+        ]
+        if summary is None or not sampled:
+            continue
+        ks.update(run.sample_k for run in sampled)
+        thresholds.update(run.miss_threshold_m for run in sampled)
+        cells = [
+            fmt(summary.summaries.get(Measure(q, c), Summary(None, None, 0)), SAMPLED_DIGITS[q])
+            for c in CASES
+            for q in SAMPLED
+        ]
+        rows.append([label(variant), *cells, str(len(sampled))])
+    if not rows:
+        return None
+    k = str(next(iter(ks))) if len(ks) == 1 else "K"
+    header = ["variant"] + [
+        f"{c} ({names.of(c)}) {SAMPLED_NAMES[q]}" + (f"_{k}" if q in ("min_ade", "min_fde") else "")
+        for c in CASES
+        for q in SAMPLED
+    ]
+    known = sorted(t for t in thresholds if t is not None)
+    miss = (
+        " / ".join(f"{t:g}" for t in known) + " m"
+        if known and None not in thresholds
+        else "the evaluation's threshold (2 m by default)"
+    )
+    lead = (
+        f"Sampled futures of the main cars, K = {', '.join(str(x) for x in sorted(ks))} per car "
+        "(`predictor.forecasting.SampleSettings`): minADE/minFDE [m] of the best of the K, miss "
+        f"rate (the best final error above {miss}), NLL [nats] of the truth per predicted step; "
+        "mean ± std over the runs with samples."
+    )
+    return lead + "\n\n" + table(header + ["runs"], rows)
 
 
 def pvalue_table(results: Results, setting: str) -> str:
@@ -398,6 +451,11 @@ def setting_section(report: Report, setting) -> list[str]:
         f"\n### `{setting.name}`: {setting.title}\n",
         results_table(results, setting.name, variants, HEADLINE, names),
         "",
+    ]
+    sampled = sample_section(results, setting.name, variants, names)
+    if sampled is not None:
+        parts += [sampled, ""]
+    parts += [
         pvalue_table(results, setting.name),
         "",
         "<details><summary>All agents (22 cars)</summary>\n",

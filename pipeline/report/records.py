@@ -10,14 +10,16 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 from predictor.metrics import ERROR_METRICS
 from predictor.registry import LABELS, ORACLE_BASELINES, REPORTED_BASELINES  # noqa: F401
 
 Role = Literal["major", "minor", "overall"]
 Group = Literal["main_agents", "all_agents"]
-Quantity = Literal["ade", "fde", "attention_accuracy", "attention_weight"]
+Quantity = Literal[
+    "ade", "fde", "attention_accuracy", "attention_weight", "min_ade", "min_fde", "miss_rate", "nll"
+]
 
 CASES: tuple[Role, ...] = ("major", "minor")  # the two cases, by role in the setting
 ROLES: tuple[Role, ...] = (*CASES, "overall")
@@ -25,6 +27,11 @@ METRICS: tuple[Quantity, ...] = tuple(m.name for m in ERROR_METRICS)  # type: ig
 GROUPS: tuple[Group, ...] = ("main_agents", "all_agents")
 HEADLINE: Group = "main_agents"  # the two interacting cars: the group the claims are about
 ATTENTION: tuple[Quantity, ...] = ("attention_accuracy", "attention_weight")
+# the scores of sampled futures (predictor.forecasting.SAMPLE_KEYS but k) an eval.json holds per
+# group and case when its predictor was evaluated with K > 0 samples; runs stored before
+# sampling existed have none, and their records no such measure
+SAMPLED: tuple[Quantity, ...] = ("min_ade", "min_fde", "miss_rate", "nll")
+GROUPED: tuple[Quantity, ...] = (*METRICS, *SAMPLED)  # scored per agent group
 # untrained predictors the report evaluates once per setting (constant velocity, ridge on the
 # car's own history, and the oracle ridges with the labelled car's history, the bar a trained
 # model must clear), their labels: predictor.registry
@@ -67,6 +74,7 @@ class Measure:
 ERROR_MEASURES = tuple(Measure(m, c, g) for g in GROUPS for c in ROLES for m in METRICS)
 ATTENTION_MEASURES = tuple(Measure(q, c) for q in ATTENTION for c in ROLES)
 MEASURES = ERROR_MEASURES + ATTENTION_MEASURES
+SAMPLE_MEASURES = tuple(Measure(q, c, g) for g in GROUPS for c in ROLES for q in SAMPLED)
 COMPARED = tuple(Measure(m, c, g) for g in GROUPS for c in CASES for m in METRICS)
 
 
@@ -89,13 +97,17 @@ class RunRecord:
     variant: str
     seed: int
     case_names: CaseNames
-    values: Mapping[Measure, float | None]  # every entry of MEASURES; None where not scored
+    # every entry of MEASURES, and of SAMPLE_MEASURES for a run scored on samples; None where
+    # not scored
+    values: Mapping[Measure, float | None]
     train_seconds: float | None = None
     best_epoch: int | None = None
     code: str | None = None  # commit of the code that evaluated it (None: not recorded)
     # how a trained run computed its graph step, "eager" or "compiled" (eval.json's graph_step;
     # trained runs from before the switch record none and were eager); None for a baseline
     graph_step: str | None = None
+    sample_k: int | None = None  # K sampled futures per agent behind SAMPLE_MEASURES (None: none)
+    miss_threshold_m: float | None = None  # [m] of the miss rate (None: eval.json records none)
 
     @classmethod
     def from_eval(cls, setting: str, variant: str, seed: int, result: dict) -> RunRecord:
@@ -118,6 +130,16 @@ class RunRecord:
                 measure.quantity, measure.quantity
             )
             values[measure] = part.get(key)
+        sample_k = result[HEADLINE]["overall"].get("k") or None  # 0 or absent: no samples
+        if sample_k is not None:
+            for measure in SAMPLE_MEASURES:
+                group = result[measure.group]
+                part = (
+                    group["overall"]
+                    if measure.case == "overall"
+                    else group["cases"][names.of(measure.case)]
+                )
+                values[measure] = part.get(measure.quantity)
         return cls(
             setting,
             variant,
@@ -128,6 +150,8 @@ class RunRecord:
             result.get("best_epoch"),
             result.get("code"),
             result.get("graph_step", "eager" if result.get("best_epoch") is not None else None),
+            None if sample_k is None else int(sample_k),
+            (result.get("sampling") or {}).get("miss_threshold_m") if sample_k else None,
         )
 
     def to_json(self) -> dict:
@@ -141,8 +165,16 @@ class RunRecord:
             "best_epoch": self.best_epoch,
             "code": self.code,
             "graph_step": self.graph_step,
+            **self.sampling_json(),
             **nested(self.values),
         }
+
+    def sampling_json(self) -> dict[str, Any]:
+        """The samples behind the run's SAMPLE_MEASURES, for `results.json`; empty without
+        samples (a run stored before sampling existed is listed as it always was)."""
+        if self.sample_k is None:
+            return {}
+        return {"sample_k": self.sample_k, "miss_threshold_m": self.miss_threshold_m}
 
 
 @dataclass(frozen=True)
@@ -273,7 +305,7 @@ def nested(values: Mapping[Measure, object]) -> dict:
     for measure, value in values.items():
         if isinstance(value, Summary):
             value = {"mean": value.mean, "std": value.std, "n": value.n}
-        if measure.quantity in METRICS:
+        if measure.quantity in GROUPED:
             out.setdefault(measure.group, {}).setdefault(measure.case, {})[measure.quantity] = value
         else:
             out.setdefault(measure.quantity, {})[measure.case] = value

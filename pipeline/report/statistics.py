@@ -20,6 +20,7 @@ from pipeline.report.records import (
     HEADLINE,
     MEASURES,
     METRICS,
+    SAMPLE_MEASURES,
     ClaimRow,
     Comparison,
     Difference,
@@ -68,7 +69,8 @@ def welch_test(a: Sequence[float], b: Sequence[float]) -> WelchTest:
 def values(runs: Iterable[RunRecord], measure: Measure) -> list[float]:
     """The runs' values of a measure in seed order; missing ones skipped."""
     ordered = sorted(runs, key=lambda r: r.seed)
-    return [float(r.values[measure]) for r in ordered if r.values[measure] is not None]
+    found = [r.values.get(measure) for r in ordered]  # a sampled measure: only runs with samples
+    return [float(v) for v in found if v is not None]
 
 
 def group_runs(runs: Iterable[RunRecord]) -> dict[tuple[str, str], list[RunRecord]]:
@@ -80,16 +82,14 @@ def group_runs(runs: Iterable[RunRecord]) -> dict[tuple[str, str], list[RunRecor
 
 
 def aggregate(runs: Iterable[RunRecord]) -> dict[tuple[str, str], VariantSummary]:
-    """Every measure of every (setting, variant) summarised over its seeds."""
-    return {
-        (setting, variant): VariantSummary(
-            setting,
-            variant,
-            len(members),
-            {m: summarize(values(members, m)) for m in MEASURES},
-        )
-        for (setting, variant), members in group_runs(runs).items()
-    }
+    """Every measure of every (setting, variant) summarised over its seeds, and each sampled
+    measure (SAMPLE_MEASURES) over the seeds that have it where any has."""
+    out = {}
+    for (setting, variant), members in group_runs(runs).items():
+        sampled = [m for m in SAMPLE_MEASURES if any(m in r.values for r in members)]
+        summaries = {m: summarize(values(members, m)) for m in (*MEASURES, *sampled)}
+        out[setting, variant] = VariantSummary(setting, variant, len(members), summaries)
+    return out
 
 
 def difference(ours: list[float], other: list[float]) -> Difference:
