@@ -39,6 +39,7 @@ from predictor.metrics import (
     headline,
 )
 from predictor.predictions import Predictions
+from predictor.wording import Wording
 from trajectory_data.format import DatasetMeta
 from trajectory_data.torch_dataset import TrajectoryDataset
 
@@ -467,23 +468,6 @@ def _sampling_record(sampling: SampleSettings, method: str) -> dict[str, Any] | 
         "miss_threshold_m": sampling.miss_threshold_m,
         "method": method,
     }
-
-
-@dataclass(frozen=True)
-class Wording:
-    """The words output uses for a file's agents and scenes: simulated scenes record attention
-    labels and score their two main cars; imported recordings are cut into windows that score
-    their focal agents (pedestrians, vehicles)."""
-
-    agents: str  # the scored agents, e.g. "main agents"
-    scenes: str  # e.g. "scenes"
-    labelled: str  # the agent an attending agent's label names, e.g. "labelled car"
-
-    @staticmethod
-    def of(meta: DatasetMeta) -> Wording:
-        if meta.has("attention"):
-            return Wording("main agents", "scenes", "labelled car")
-        return Wording("focal agents", "windows", "labelled agent")
 
 
 def _common_diagnostics(dataset: TrajectoryDataset, pred_mean: np.ndarray, predict) -> dict:

@@ -94,13 +94,15 @@ NO_VAL_NOTE = (
 )
 
 
-def best_text(best_score: float | None, best_epoch: int, has_val: bool) -> str:
+def best_text(
+    best_score: float | None, best_epoch: int, has_val: bool, agents: str = "main agents"
+) -> str:
     """How a summary line names best.pt: its validation ADE and epoch, or why it has none."""
     if not has_val:
         return f"no validation split (best.pt is the last epoch, {best_epoch})"
     if best_score is None:
         return "no validation score (no agent scored; best.pt is the last epoch)"
-    return f"best val ADE (main agents) {best_score:.3f} m at epoch {best_epoch}"
+    return f"best val ADE ({agents}) {best_score:.3f} m at epoch {best_epoch}"
 
 
 def status_of(checkpoint: Mapping[str, Any], out_dir: str | os.PathLike) -> RunStatus:

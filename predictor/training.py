@@ -71,6 +71,7 @@ from predictor.run_state import (
     rewrite_metrics,
 )
 from predictor.stored_config import config_to_dict
+from predictor.wording import Wording
 from trajectory_data.format import DatasetMeta
 from trajectory_data.torch_dataset import Batch, TrajectoryDataset
 
@@ -254,13 +255,14 @@ class TrainResult:
     final_loss: float | None  # mean training loss of the last epoch run now (None if none ran)
     seconds: float  # wall time of this call
     has_val: bool = True  # the data had a validation split (False: best.pt is the last epoch)
+    agents: str = "main agents"  # the scored agents' name (`predictor.wording.Wording`)
 
     def summary(self, variant: str) -> str:
         """One-line summary."""
         loss = "n/a" if self.final_loss is None else f"{self.final_loss:.4f}"
         return (
             f"trained {variant} for {self.epochs} epochs in {self.seconds:.1f} s; final loss "
-            f"{loss}; {best_text(self.best_score, self.best_epoch, self.has_val)}; "
+            f"{loss}; {best_text(self.best_score, self.best_epoch, self.has_val, self.agents)}; "
             f"run in {self.out_dir}"
         )
 
@@ -334,7 +336,7 @@ def _train(
     if progress:  # seconds before the bar: the optimiser's first use imports much of torch
         print(
             f"train {train_cfg.variant}: building the model and optimiser on "
-            f"{len(train_set)} training scenes",
+            f"{len(train_set)} training {Wording.of(train_set.meta).scenes}",
             file=sys.stderr,
             flush=True,
         )
@@ -377,6 +379,7 @@ def _train(
         final_loss,
         time.perf_counter() - started,
         has_val=val_set is not None,
+        agents=Wording.of(train_set.meta).agents,
     )
 
 

@@ -51,14 +51,9 @@ from pipeline.cli import (
 )
 from predictor.baselines import BASELINES
 from predictor.checkpoints import CHECKPOINTS, CheckpointError
-from predictor.evaluation import (
-    Evaluation,
-    ScenarioMismatchError,
-    Wording,
-    evaluate_baseline,
-    evaluate_run,
-)
+from predictor.evaluation import Evaluation, ScenarioMismatchError, evaluate_baseline, evaluate_run
 from predictor.forecasting import SAMPLE_METHODS, EvaluationError, SampleSettings
+from predictor.wording import Wording
 from trajectory_data.format import FormatError
 
 
