@@ -17,10 +17,11 @@ from test_training import TINY_MODEL
 
 from pipeline.generation import GenerateConfig, generate_dataset
 from pipeline.viewer import ViewerError, make_viewer, write_viewer
+from pipeline.viewer.content import SHOWN_SAMPLES
 from pipeline.viewer.pack import dequantize_unit, pack, quantize_unit, unpack
 from pipeline.viewer.scores import scene_scores
 from predictor.evaluation import evaluate_baseline, evaluate_run
-from predictor.forecasting import score
+from predictor.forecasting import SampleSettings, score
 from predictor.predictions import load_predictions
 from predictor.presets import make_configs
 from predictor.training import train
@@ -105,7 +106,10 @@ def test_the_page_carries_the_datasets_positions_and_the_predictions_attention(f
     shown = dequantize_unit(arrays["attention"])
     assert np.nanmax(np.abs(shown - pred.attention)) <= 0.5 / 65534 + 1e-7
     assert np.array_equal(np.isnan(shown), np.isnan(pred.attention))
-    assert "samples" not in arrays and "influence" not in arrays  # today's files hold neither
+    # the predictions' first SHOWN_SAMPLES sampled futures (tools/evaluate.py samples 20)
+    assert pred.num_samples == 20
+    assert np.array_equal(arrays["samples"], pred.samples[:, :SHOWN_SAMPLES])
+    assert "influence" not in arrays  # no predictions file holds one yet
     meta = read_meta(files["data"])
     scenario = meta.config["scenario"]
     assert spec["road"] == {k: scenario[k] for k in spec["road"]} and len(spec["road"]) == 5
@@ -152,7 +156,8 @@ def test_per_scene_scores_are_the_metrics_of_each_scene_alone(files, tmp_path):
         assert spec["scenes"]["ade"][k] == pytest.approx(alone["main_agents"]["overall"]["ade"])
         accuracy = alone["attention_accuracy"]["overall"]["accuracy"]
         assert spec["scenes"]["accuracy"][k] == pytest.approx(accuracy)
-    evaluation = evaluate_run(files["run"], files["data"], "test")
+    # the page's headline is the single prediction's (it shows no samples' scores)
+    evaluation = evaluate_run(files["run"], files["data"], "test", sampling=SampleSettings(k=0))
     assert spec["headline"] == evaluation.headline()
 
 
@@ -276,6 +281,7 @@ def test_predictions_of_another_shape_are_refused(files, tmp_path):
         roles=pred.roles[:, :21],
         attention=pred.attention[:, :, :21, :21],
         attention_label=np.clip(pred.attention_label[:, :, :21], -1, 20),
+        samples=pred.samples[..., :21, :],
     )
     fewer.save(tmp_path / "fewer.npz")
     with pytest.raises(ViewerError, match=r"are \(60, 21, 12, 0.3\), the dataset's \(60, 22, 12"):
@@ -360,7 +366,9 @@ def test_the_tool_refuses_a_page_too_large_and_thins_it_on_request(tmp_path):
     test = make_trajectory_set(128, num_steps=20, num_agents=120, seed=3)
     sets = {"train": make_trajectory_set(1, 20, 120), "val": make_trajectory_set(1, 20, 120)}
     write_dataset(tmp_path / "big.h5", meta, {**sets, "test": test})
-    pred = evaluate_baseline("const_vel", tmp_path / "big.h5", "test").predictions
+    pred = evaluate_baseline(
+        "const_vel", tmp_path / "big.h5", "test", sampling=SampleSettings(k=0)
+    ).predictions  # no samples: the sizes above
     pred.save(tmp_path / "big.npz")
     argv = [str(tmp_path / "big.h5"), "--predictions", str(tmp_path / "big.npz")]
     done = run_tool("view.py", *argv, "--out", str(tmp_path / "v.html"), "--no-progress")

@@ -17,9 +17,10 @@ the page's script reads):
 | `samples` | float32 | (n, S, P, N, 2) | predicted samples [m], where the predictions hold them |
 | `influence` | float32 | (n, T-1, N, N) | influence of j on i at t, where the predictions hold it |
 
-Today's predictions files hold neither samples nor an influence matrix: `samples` and
-`influence` are taken from attributes of those names on the predictions when they exist, and
-the page draws them only when present.
+`samples` are the predictions' first `SHOWN_SAMPLES` sampled futures, where they hold any
+(`tools/evaluate.py --samples K`). No predictions file holds an influence matrix yet: `influence`
+is taken from an attribute of that name on the predictions when it exists. The page draws each
+only when present.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from trajectory_data.format import DatasetMeta
 
 SPEC_FORMAT = "smooth-attention-viewer"
 SPEC_VERSION = 1
+SHOWN_SAMPLES = 6  # sampled futures per scene the page carries (a predictions file has up to K)
 ROAD_KEYS = ("num_lanes", "lane_width_m", "road_length_m", "car_length_m", "car_width_m")
 
 
@@ -66,10 +68,11 @@ def scene_arrays(shown: Shown) -> dict[str, np.ndarray]:
     if pred is not None:
         arrays["pred"] = pred.pred_mean.astype(np.float32)
         arrays["attention"] = quantize_unit(pred.attention)
-        for name in ("samples", "influence"):  # optional: no predictions file holds them yet
-            value = getattr(pred, name, None)
-            if value is not None:
-                arrays[name] = np.asarray(value, dtype=np.float32)
+        if pred.num_samples:  # the first SHOWN_SAMPLES: 20 would make the page ~4x larger
+            arrays["samples"] = pred.samples[:, :SHOWN_SAMPLES].astype(np.float32)
+        influence = getattr(pred, "influence", None)  # optional: no predictions file holds it yet
+        if influence is not None:
+            arrays["influence"] = np.asarray(influence, dtype=np.float32)
     return arrays
 
 
