@@ -17,6 +17,16 @@ Speed: episodes are rolled out `batch_scenes` at a time (default
 episodes of the one-by-one path (`batch_scenes=1`) several times faster; the output does not
 depend on it (tested).
 
+Counterfactual ground truth and observation noise (issue 68), both off by default so that the
+output of a call without them keeps its bytes: with `influence=True` every trajectory's
+influence matrices (`scenarios.counterfactual`: the ADE of each agent's predicted steps when
+another is removed, for the whole episode and from the first predicted step) are computed from
+the clean run and stored as the optional dataset `influence` (schema 4); they cost about 5 times
+the generation (docs/dataset_format.md). With `observation_noise_m=SIGMA > 0` the stored
+positions of the observed steps get Gaussian noise (`scenarios.observation_noise`, seeded per
+trajectory); labels and influence still describe the clean run, and the file's config records
+SIGMA under "observation_noise_m".
+
 Interrupts: while episodes are rolled out, SIGINT and SIGTERM are only recorded and handed to the
 caller's own handler between episodes, or batches of them
 (`pipeline.signals.DeferredSignals`), so Ctrl-C ends a run cleanly with
@@ -33,6 +43,8 @@ import os
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 from pipeline.backends import BACKENDS
 from pipeline.dataset_plan import (  # noqa: F401 (the generator's public names, re-exported)
@@ -58,8 +70,13 @@ from pipeline.dataset_plan import (  # noqa: F401 (the generator's public names,
 from pipeline.episode_runner import DEFAULT_BATCH_SCENES, Slot
 from pipeline.sharded_generation import generate_sharded
 from scenarios import VERSIONS, Scenario
+from scenarios.counterfactual import INFLUENCE_KINDS, influence_matrices
+from scenarios.observation_noise import add_observation_noise, check_noise
 from scenarios.rollout import Episode
-from trajectory_data.format import TrajectorySet, write_dataset
+from trajectory_data import format as data_format
+from trajectory_data.format import INFLUENCE, DatasetMeta, TrajectorySet, write_dataset
+
+assert INFLUENCE_KINDS == data_format.INFLUENCE_KINDS  # the scenarios' order is the format's
 
 
 def generate_episodes(
@@ -123,18 +140,61 @@ def generate_episodes(
 
 # ---- writing --------------------------------------------------------------------------------
 def _build_splits(
-    slots: list[Slot], episodes: list[Episode], scenario: Scenario
+    slots: list[Slot],
+    episodes: list[Episode],
+    scenario: Scenario,
+    influence: np.ndarray | None = None,
+    observation_noise_m: float = 0.0,
 ) -> dict[str, TrajectorySet]:
+    """The splits' sets, with `influence` (one (2, N, N) per slot) attached and the observed
+    positions blurred by `observation_noise_m` where given."""
     splits = {}
     case_names = tuple(scenario.case_names)
     for split in SPLIT_ORDER:
-        chosen = [e for s, e in zip(slots, episodes) if s.split == split]
-        splits[split] = (
-            to_trajectory_set(chosen, case_names)
-            if chosen
+        rows = [k for k, slot in enumerate(slots) if slot.split == split]
+        data = (
+            to_trajectory_set([episodes[k] for k in rows], case_names)
+            if rows
             else TrajectorySet.empty(scenario.config.num_steps, episodes[0].states.shape[1])
         )
+        if observation_noise_m > 0:
+            states = add_observation_noise(
+                data.states,
+                data.valid,
+                data.seed,
+                scenario.config.num_observed,
+                observation_noise_m,
+            )
+            data = dataclasses.replace(data, states=states)
+        if influence is not None:
+            data = dataclasses.replace(data, influence=influence[rows])
+        splits[split] = data
     return splits
+
+
+def slot_influence(
+    scenario: Scenario, slots: list[Slot], batch_scenes: int = DEFAULT_BATCH_SCENES
+) -> np.ndarray:
+    """(len(slots), 2, N, N) float32 influence matrices of the slots' episodes (their plans
+    drawn again from their seeds), `batch_scenes` scenes at a time
+    (`scenarios.counterfactual.influence_matrices`)."""
+    check_int("batch_scenes", batch_scenes, 1)
+    parts = [influence_matrices(scenario, [])]
+    for start in range(0, len(slots), batch_scenes):
+        batch = slots[start : start + batch_scenes]
+        parts.append(influence_matrices(scenario, [scenario.plan(s.seed, s.case) for s in batch]))
+    return np.concatenate(parts)
+
+
+def with_options(meta: DatasetMeta, influence: bool, observation_noise_m: float) -> DatasetMeta:
+    """`meta` recording influence and the observation noise where asked (unchanged if not)."""
+    if influence:
+        meta = dataclasses.replace(meta, recorded=(*meta.recorded, INFLUENCE))
+    if observation_noise_m > 0:
+        meta = dataclasses.replace(
+            meta, config={**meta.config, "observation_noise_m": observation_noise_m}
+        )
+    return meta
 
 
 def _check_output(out: Path, overwrite: bool) -> None:
@@ -162,6 +222,8 @@ def generate_dataset(
     address: str | None = None,
     batch_scenes: int = DEFAULT_BATCH_SCENES,
     shard_size: int | None = None,
+    influence: bool = False,
+    observation_noise_m: float = 0.0,
 ) -> GenerationResult:
     """Roll out `config`'s trajectories, check them, and write the dataset to `out` atomically.
 
@@ -182,8 +244,15 @@ def generate_dataset(
     soon as it is done, so memory holds about one shard (`pipeline.sharded_generation`); the output
     is the same for any `workers` and `backend`. An existing `out` is replaced (with `overwrite`)
     only if it is a file or a sharded dataset's folder, else IsADirectoryError.
+
+    `influence` (default False): also compute and store every trajectory's influence matrices
+    (see the module; single files only, ValueError with `shard_size`). `observation_noise_m`
+    (default 0, >= 0): Gaussian noise [m] on the observed positions (see the module).
     """
     out = Path(out)
+    observation_noise_m = check_noise(observation_noise_m)
+    if not isinstance(influence, bool):
+        raise ValueError(f"influence must be True or False, got {influence!r}")
     if workers < 1:
         raise ValueError(f"workers must be at least 1, got {workers}")
     check_int("batch_scenes", batch_scenes, 1)
@@ -191,6 +260,8 @@ def generate_dataset(
         check_int("shard_size", shard_size, 1)
         if out.suffix in (".h5", ".hdf5"):
             raise ValueError(f"with shard_size, out names a folder (no .h5 suffix), got {out}")
+        if influence:
+            raise ValueError("influence is written to single files only, not with shard_size")
         return generate_sharded(
             config,
             out,
@@ -201,6 +272,7 @@ def generate_dataset(
             backend=backend,
             batch_scenes=batch_scenes,
             address=address,
+            observation_noise_m=observation_noise_m,
         )
     _check_output(out, overwrite)
     start = time.perf_counter()
@@ -215,8 +287,13 @@ def generate_dataset(
     if progress:  # stacking and writing a large set takes seconds: say what is going on
         print(f"writing {len(episodes):,} trajectories to {out} ...", file=sys.stderr, flush=True)
     scenario = VERSIONS[config.scenario].make()
-    splits = _build_splits(slots, episodes, scenario)
-    meta = dataset_meta(config, scenario, rejected)
+    matrices = None
+    if influence:
+        if progress:
+            print("computing influence matrices ...", file=sys.stderr, flush=True)
+        matrices = slot_influence(scenario, slots, batch_scenes)
+    splits = _build_splits(slots, episodes, scenario, matrices, observation_noise_m)
+    meta = with_options(dataset_meta(config, scenario, rejected), influence, observation_noise_m)
     write_dataset(out, meta, splits, overwrite=overwrite)
     counts = {
         split: {name: int((data.case == i).sum()) for i, name in enumerate(meta.case_names)}

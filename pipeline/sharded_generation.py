@@ -43,7 +43,9 @@ from pipeline.dataset_plan import (
 )
 from pipeline.episode_runner import DEFAULT_BATCH_SCENES, Slot
 from scenarios import VERSIONS
+from scenarios.observation_noise import add_observation_noise
 from scenarios.rollout import Episode
+from trajectory_data.format import DatasetMeta
 from trajectory_data.shards import ShardedWriter, check_target
 
 # what a shard hands to its writer: split, position in the split, episodes in plan order
@@ -74,8 +76,10 @@ def generate_sharded(
     backend: str,
     address: str | None,
     batch_scenes: int = DEFAULT_BATCH_SCENES,
+    observation_noise_m: float = 0.0,
 ) -> GenerationResult:
-    """`generate_dataset` with `shard_size` (arguments checked there): the folder `out`."""
+    """`generate_dataset` with `shard_size` (arguments checked there): the folder `out`;
+    `observation_noise_m` as there (recorded in the index's and every shard's config)."""
     check_target(out, overwrite)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -85,7 +89,7 @@ def generate_sharded(
         ) from None
     start = time.perf_counter()
     scenario = VERSIONS[config.scenario].make()
-    meta = dataset_meta(config, scenario, 0)
+    meta = _with_noise(dataset_meta(config, scenario, 0), observation_noise_m)
     # the shards' config: the generator's and the scenario's; the index adds the total of
     # rejected episodes, known only at the end
     shard_meta = dataclasses.replace(
@@ -96,6 +100,11 @@ def generate_sharded(
 
     def write(split: str, position: int, episodes: list[Episode]) -> None:
         data = to_trajectory_set(episodes, meta.case_names)
+        if observation_noise_m > 0:
+            states = add_observation_noise(
+                data.states, data.valid, data.seed, meta.num_observed, observation_noise_m
+            )
+            data = dataclasses.replace(data, states=states)
         writer.write_shard(split, position, data)
         for episode in episodes:
             counts[split][episode.case] += 1
@@ -112,7 +121,7 @@ def generate_sharded(
             address=address,
             batch_scenes=batch_scenes,
         )
-        meta = dataset_meta(config, scenario, rejected)
+        meta = _with_noise(dataset_meta(config, scenario, rejected), observation_noise_m)
         index = writer.finish(meta)
     return GenerationResult(
         path=index,
@@ -122,6 +131,15 @@ def generate_sharded(
         rejected=rejected,
         seconds=time.perf_counter() - start,
         shards=len(written),
+    )
+
+
+def _with_noise(meta: DatasetMeta, observation_noise_m: float) -> DatasetMeta:
+    """`meta` with the observation noise in its config where there is some."""
+    if observation_noise_m <= 0:
+        return meta
+    return dataclasses.replace(
+        meta, config={**meta.config, "observation_noise_m": observation_noise_m}
     )
 
 

@@ -62,7 +62,7 @@ def _edit(path: Path, edit) -> None:
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
-        (lambda f: f.attrs.__setitem__("schema_version", 4), "schema_version 4 is not supported"),
+        (lambda f: f.attrs.__setitem__("schema_version", 5), "schema_version 5 is not supported"),
         # schema 3 is an index of shards (tests/test_shards.py): it needs the list of them
         (
             lambda f: f.attrs.__setitem__("schema_version", 3),

@@ -15,6 +15,12 @@ With `--shard-size N` the output is a folder (default data/<name> without .h5) o
 at most N trajectories of one split each, plus FOLDER/index.h5, which every tool reads as the one
 file (docs/dataset_format.md, "Sharded datasets"); each shard is written as soon as it is done,
 so a dataset larger than memory can be generated.
+
+`--influence` also stores every trajectory's counterfactual influence matrices (how far each
+agent's predicted steps move when another agent is removed; schema 4, single files only; about
+5 times the generation's time). `--observation-noise-m SIGMA` adds Gaussian noise of SIGMA metres
+to the stored positions of the observed steps (labels and influence stay those of the clean
+run). Both are off by default, so a plain run writes the same bytes as before.
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ from pipeline.generation import (
 )
 from pipeline.ray_backend import RayUnavailableError
 from scenarios import choices_text, lookup
+from scenarios.observation_noise import check_noise
 
 # config and generate_dataset errors name these fields; the user typed the flags
 _FLAGS = re.compile(r"\b(num_major|num_minor|num_test|val_fraction|major_case|minor_ratio|seed)\b")
@@ -130,6 +137,20 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="write a folder of shard files of at most N trajectories per split plus "
         "FOLDER/index.h5, read as one dataset; for outputs larger than memory (default: one file)",
     )
+    parser.add_argument(
+        "--influence",
+        action="store_true",
+        help="also compute and store the influence matrices (counterfactual ground truth: each "
+        "agent's predicted ADE when another is removed; single files only, ~5x the time)",
+    )
+    parser.add_argument(
+        "--observation-noise-m",
+        type=float,
+        default=0.0,
+        metavar="SIGMA",
+        help="Gaussian noise [m] on the stored positions of the observed steps, seeded per "
+        "trajectory; labels and influence from the clean run (default 0: none)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     parser.add_argument(
         "--no-progress", action="store_true", help="no progress bar or status lines on stderr"
@@ -181,6 +202,12 @@ def main(argv: list[str] | None = None) -> None:
     out = Path(args.out) if args.out is not None else default_output(config, sharded)
     if sharded and out.suffix in (".h5", ".hdf5"):
         fail(f"with --shard-size, --out names a folder (its index is FOLDER/index.h5), got {out}")
+    if sharded and args.influence:
+        fail("--influence is written to single files only, not with --shard-size")
+    try:
+        check_noise(args.observation_noise_m)
+    except ValueError as error:
+        fail(f"--observation-noise-m: {error}")
     try:
         result = generate_dataset(
             config,
@@ -192,6 +219,8 @@ def main(argv: list[str] | None = None) -> None:
             batch_scenes=args.batch_scenes,
             shard_size=args.shard_size,
             progress=not args.no_progress,
+            influence=args.influence,
+            observation_noise_m=args.observation_noise_m,
         )
     except KeyboardInterrupt:
         fail("interrupted; nothing was written", code=130)

@@ -19,6 +19,12 @@ same arrays whatever the source recorded. Code that needs real labels or states 
 A schema-1 file reads as schema 2 with everything recorded and the first two agent slots focal
 (`legacy_focal`), which is what the metrics of schema 1 scored.
 
+Schema 4 is schema 2 plus the optional per-split dataset `influence` (counterfactual ground
+truth, `INFLUENCE_KINDS`), listed in `recorded` where a file holds it. A writer writes the lowest
+schema that describes the file (`written_schema`): 2 without influence, so such files keep their
+bytes and older readers read them, 4 with it, which older readers refuse by its number instead
+of misreading. In memory an absent influence is None, never filled.
+
 Schema 3 is the index of a sharded dataset (written by `trajectory_data.shards`): a schema-2
 file whose split datasets are HDF5 virtual datasets over shard files beside it, listed in the root
 attribute `shards`. It reads like one file; the reader first checks that every listed shard is there
@@ -28,6 +34,7 @@ zeros) and fails with one line naming the shard otherwise.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -42,9 +49,10 @@ import numpy as np
 from trajectory_data import __version__
 
 FORMAT_NAME = "smooth-attention-trajectories"
-SCHEMA_VERSION = 2  # what `write_dataset` writes (a single file, or one shard)
+SCHEMA_VERSION = 2  # what `write_dataset` writes (a single file, or one shard) without influence
 INDEX_SCHEMA_VERSION = 3  # an index of shards (`trajectory_data.shards`): schema 2 plus `shards`
-SUPPORTED_VERSIONS = (1, 2, 3)  # what the reader reads
+INFLUENCE_SCHEMA_VERSION = 4  # schema 2 plus the optional dataset `influence`
+SUPPORTED_VERSIONS = (1, 2, 3, 4)  # what the reader reads
 SPLITS = ("train", "val", "test")
 STATE_NAMES = ("x", "y", "heading", "speed")  # the synthetic scenarios' (and schema 1's) states
 ACTION_NAMES = ("steering", "acceleration")  # the synthetic scenarios' (and schema 1's) actions
@@ -74,6 +82,14 @@ NEUTRAL_VALUES: dict[str, int | bool] = {
     "roles": 0,
 }
 OPTIONAL_FIELDS = tuple(NEUTRAL_VALUES)
+# Counterfactual ground truth (schema 4), per split: influence[k, kind, i, j] [m], the average
+# displacement of agent i over the predicted steps when agent j is removed, for the whole
+# episode (kind 0) or from the first predicted step on (kind 1); 0 on the diagonal, NaN where
+# agent i is absent (docs/dataset_format.md). Never filled when absent (it is N x N per window).
+INFLUENCE = "influence"
+INFLUENCE_KINDS = ("episode", "predicted")
+INFLUENCE_FIELD = (np.dtype(np.float32), ("n", len(INFLUENCE_KINDS), "N", "N"))
+RECORDABLE = (*OPTIONAL_FIELDS, INFLUENCE)  # what `recorded` may list
 _AGENT_AXIS = {"states": 2, "actions": 2, "valid": 2, "focal": 1, "attention": 2, "roles": 1}
 ROOT_ATTRS_V1 = (
     "format",
@@ -122,7 +138,8 @@ class DatasetMeta:
     state_names: tuple[str, ...] = STATE_NAMES
     # names of the action channels (may be none); default: the synthetic scenarios' two
     action_names: tuple[str, ...] = ACTION_NAMES
-    # optional datasets (OPTIONAL_FIELDS) the file holds; the others read as NEUTRAL_VALUES
+    # optional datasets (RECORDABLE) the file holds; absent OPTIONAL_FIELDS read as
+    # NEUTRAL_VALUES, an absent influence as None
     recorded: tuple[str, ...] = OPTIONAL_FIELDS
 
     def __post_init__(self) -> None:
@@ -130,7 +147,7 @@ class DatasetMeta:
             object.__setattr__(self, name, tuple(getattr(self, name)))
 
     def has(self, name: str) -> bool:
-        """Whether the optional dataset `name` (one of OPTIONAL_FIELDS) holds recorded data."""
+        """Whether the optional dataset `name` (one of RECORDABLE) holds recorded data."""
         return name in self.recorded
 
     def state_index(self, name: str) -> int | None:
@@ -193,11 +210,23 @@ class DatasetMeta:
                 f"state_names must start with {list(REQUIRED_STATES)}, "
                 f"got {list(self.state_names)}",
             )
-        unknown = [name for name in self.recorded if name not in OPTIONAL_FIELDS]
+        unknown = [name for name in self.recorded if name not in RECORDABLE]
         if unknown:
             raise format_error(
-                source, f"recorded names unknown datasets {unknown}; optional are {OPTIONAL_FIELDS}"
+                source, f"recorded names unknown datasets {unknown}; optional are {RECORDABLE}"
             )
+        if self.has(INFLUENCE) and self.schema_version in (1, 3):
+            raise format_error(
+                source,
+                f"{INFLUENCE} needs schema {INFLUENCE_SCHEMA_VERSION}, not schema "
+                f"{self.schema_version}",
+            )
+
+
+def written_schema(meta: DatasetMeta) -> int:
+    """The schema a file of `meta` is written as: INFLUENCE_SCHEMA_VERSION if it records
+    influence, else SCHEMA_VERSION (so files without influence keep their bytes)."""
+    return INFLUENCE_SCHEMA_VERSION if meta.has(INFLUENCE) else SCHEMA_VERSION
 
 
 def versions_text() -> str:
@@ -228,6 +257,7 @@ class TrajectorySet:
     seed: np.ndarray  # (n,) int64: generating seed, -1 for foreign data
     roles: np.ndarray  # (n, N) int8: index into role_names
     focal: np.ndarray | None = None  # (n, N) bool: agents scored and selecting checkpoints
+    influence: np.ndarray | None = None  # (n, 2, N, N) float32 [m] (schema 4), None: absent
 
     def __post_init__(self) -> None:
         if self.focal is None and isinstance(self.states, np.ndarray) and self.states.ndim >= 3:
@@ -267,6 +297,7 @@ class TrajectorySet:
             raise format_error(source, f"states need at least the channels {list(REQUIRED_STATES)}")
         if meta is not None:
             self._check_meta(meta, source)
+        self._check_influence(source)
         if n == 0:
             return
         if not np.isfinite(self.states[self.valid]).all():
@@ -291,6 +322,23 @@ class TrajectorySet:
                     source, f"{name} index {int(values.max())} out of range for {limit} names"
                 )
 
+    def _check_influence(self, source: str) -> None:
+        influence = self.influence
+        if influence is None:
+            return
+        dtype, _ = INFLUENCE_FIELD
+        expected = (self.n, len(INFLUENCE_KINDS), self.num_agents, self.num_agents)
+        if not isinstance(influence, np.ndarray) or influence.dtype != dtype:
+            raise format_error(source, f"{INFLUENCE} must be a {dtype} array")
+        if influence.shape != expected:
+            raise format_error(
+                source,
+                f"{INFLUENCE} has shape {influence.shape}, expected {expected} (n, kinds "
+                f"{list(INFLUENCE_KINDS)}, N, N)",
+            )
+        if (influence < 0).any() or np.isinf(influence).any():
+            raise format_error(source, f"{INFLUENCE} must be NaN or finite and non-negative [m]")
+
     def _check_meta(self, meta: DatasetMeta, source: str) -> None:
         if self.num_steps != meta.num_steps:
             raise format_error(
@@ -305,6 +353,13 @@ class TrajectorySet:
                     f"{name} has {getattr(self, name).shape[3]} channels but "
                     f"{name[:-1]}_names lists {len(names)}",
                 )
+        if meta.has(INFLUENCE) != (self.influence is not None):
+            state = "lists" if meta.has(INFLUENCE) else "does not list"
+            raise format_error(
+                source,
+                f"the metadata {state} {INFLUENCE} as recorded but the split "
+                f"{'lacks it' if meta.has(INFLUENCE) else 'holds it'}",
+            )
         for name, neutral in NEUTRAL_VALUES.items():
             if not meta.has(name) and (getattr(self, name) != neutral).any():
                 raise format_error(
@@ -347,7 +402,10 @@ class TrajectorySet:
             indices = np.asarray(indices)
             if indices.dtype != np.bool_:
                 indices = indices.astype(np.int64).reshape(-1)
-        return TrajectorySet(**{k: np.array(v[indices]) for k, v in self.arrays().items()})
+        influence = None if self.influence is None else np.array(self.influence[indices])
+        return TrajectorySet(
+            **{k: np.array(v[indices]) for k, v in self.arrays().items()}, influence=influence
+        )
 
     def select_case(self, case_index: int) -> TrajectorySet:
         """Only the trajectories of one case (index into case_names)."""
@@ -366,11 +424,18 @@ class TrajectorySet:
         if len(steps) != 1:
             raise FormatError(f"cannot concatenate sets with different T: {sorted(steps)}")
         agents = max(s.num_agents for s in sets)
-        padded = [s.pad_agents(agents).arrays() for s in sets]
-        return TrajectorySet(**{k: np.concatenate([p[k] for p in padded]) for k in FIELDS})
+        padded = [s.pad_agents(agents) for s in sets]
+        arrays = [p.arrays() for p in padded]
+        influence = None  # kept only where every set has it
+        if all(p.influence is not None for p in padded):
+            influence = np.concatenate([p.influence for p in padded])
+        return TrajectorySet(
+            **{k: np.concatenate([a[k] for a in arrays]) for k in FIELDS}, influence=influence
+        )
 
     def pad_agents(self, num_agents: int) -> TrajectorySet:
-        """The set with its agent axis padded to `num_agents` slots (as in `concatenate`)."""
+        """The set with its agent axis padded to `num_agents` slots (as in `concatenate`;
+        influence rows and columns of padded slots are NaN)."""
         extra = num_agents - self.num_agents
         if extra < 0:
             raise ValueError(f"cannot pad {self.num_agents} agent slots down to {num_agents}")
@@ -386,7 +451,11 @@ class TrajectorySet:
             widths = [(0, 0)] * array.ndim
             widths[axis] = (0, extra)
             out[name] = np.pad(array, widths, constant_values=fill.get(name, 0))
-        return TrajectorySet(**out)
+        influence = self.influence
+        if influence is not None:  # padded agents are absent: NaN rows and columns
+            widths = [(0, 0), (0, 0), (0, extra), (0, extra)]
+            influence = np.pad(influence, widths, constant_values=np.nan)
+        return TrajectorySet(**out, influence=influence)
 
     @staticmethod
     def empty(
@@ -395,7 +464,8 @@ class TrajectorySet:
         num_states: int = len(STATE_NAMES),
         num_actions: int = len(ACTION_NAMES),
     ) -> TrajectorySet:
-        """A set of zero trajectories with the given T, N and state and action channels."""
+        """A set of zero trajectories with the given T, N and state and action channels (no
+        influence)."""
         sizes = {"n": 0, "T": num_steps, "N": num_agents, "C": num_states, "A": num_actions}
         return TrajectorySet(
             **{
@@ -436,9 +506,13 @@ def write_dataset(
         raise FormatError(f"no splits given; expected some of {list(SPLITS)}")
     agents = next(iter(splits.values())).num_agents
     channels = len(meta.state_names), len(meta.action_names)
-    full = {
-        s: splits.get(s, TrajectorySet.empty(meta.num_steps, agents, *channels)) for s in SPLITS
-    }
+    empty = TrajectorySet.empty(meta.num_steps, agents, *channels)
+    if meta.has(INFLUENCE):
+        kinds = len(INFLUENCE_KINDS)
+        empty = dataclasses.replace(
+            empty, influence=np.zeros((0, kinds, agents, agents), dtype=np.float32)
+        )
+    full = {s: splits.get(s, empty) for s in SPLITS}
     for name, data in full.items():
         data.validate(meta, source=f"split {name!r}")
     if target.exists() and not overwrite:
@@ -461,7 +535,7 @@ def write_dataset(
 def _write_root_attrs(file: h5py.File, meta: DatasetMeta) -> None:
     attrs = file.attrs
     attrs["format"] = FORMAT_NAME
-    attrs["schema_version"] = np.int64(SCHEMA_VERSION)
+    attrs["schema_version"] = np.int64(written_schema(meta))
     attrs["scenario"] = meta.scenario
     attrs["dt"] = np.float64(meta.dt)
     attrs["num_observed"] = np.int64(meta.num_observed)
@@ -492,3 +566,15 @@ def _write_split(group: h5py.Group, data: TrajectorySet, recorded: tuple[str, ..
             )
         else:
             group.create_dataset(name, data=array)
+    if INFLUENCE in recorded and data.influence is not None:
+        if data.n > 0:
+            group.create_dataset(
+                INFLUENCE,
+                data=data.influence,
+                chunks=(1, *data.influence.shape[1:]),
+                compression="gzip",
+                compression_opts=4,
+                shuffle=True,
+            )
+        else:
+            group.create_dataset(INFLUENCE, data=data.influence)

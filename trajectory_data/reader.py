@@ -1,5 +1,5 @@
-"""Reading the trajectory dataset format (`trajectory_data.format`): schema 1 and 2 files and
-schema-3 indexes of shards, each read validated into the in-memory `DatasetMeta` and
+"""Reading the trajectory dataset format (`trajectory_data.format`): schema 1, 2 and 4 files
+and schema-3 indexes of shards, each read validated into the in-memory `DatasetMeta` and
 `TrajectorySet`, or a one-line `FormatError` naming the file and the problem; and the
 human-readable summary of a file (`tools/inspect_data.py`).
 
@@ -22,8 +22,12 @@ from trajectory_data.format import (
     FIELDS,
     FORMAT_NAME,
     INDEX_SCHEMA_VERSION,
+    INFLUENCE,
+    INFLUENCE_FIELD,
+    INFLUENCE_KINDS,
     NEUTRAL_VALUES,
     OPTIONAL_FIELDS,
+    RECORDABLE,
     ROOT_ATTRS,
     ROOT_ATTRS_V1,
     ROOT_ATTRS_V3,
@@ -116,7 +120,7 @@ class _Reader:
                 self.source,
                 f"schema_version {version} is not supported (this reader reads {versions_text()})",
             )
-        required = {1: ROOT_ATTRS_V1, 2: ROOT_ATTRS, 3: ROOT_ATTRS_V3}[version]
+        required = {1: ROOT_ATTRS_V1, 2: ROOT_ATTRS, 3: ROOT_ATTRS_V3, 4: ROOT_ATTRS}[version]
         missing = [name for name in required if name not in attrs]
         if missing:
             raise format_error(self.source, f"missing root attribute(s) {missing}")
@@ -164,6 +168,7 @@ class _Reader:
             broken = self._broken_shard(name) if self.shards else None
             shard = f"shard {broken}: " if broken else ""
             raise format_error(where, f"{shard}corrupt or truncated data ({_short(err)})") from None
+        influence = arrays.pop(INFLUENCE, None)
         n, steps, agents = arrays["states"].shape[:3]
         for field_name, neutral in NEUTRAL_VALUES.items():  # absent optional data: neutral
             if field_name not in arrays:
@@ -173,7 +178,7 @@ class _Reader:
                 arrays[field_name] = np.full(full, neutral, dtype=dtype)
         if meta.schema_version == 1:
             arrays["focal"] = legacy_focal(n, agents)
-        data = TrajectorySet(**arrays)
+        data = TrajectorySet(**arrays, influence=influence)
         data.validate(meta, source=where)
         if not isinstance(count, (int, np.integer)) or int(count) != data.n:
             shown = count.item() if isinstance(count, np.generic) else count
@@ -188,7 +193,11 @@ class _Reader:
         if meta.schema_version == 1:
             stored.remove("focal")
         else:
-            extra = [f for f in OPTIONAL_FIELDS if f not in stored and f in group]
+            extra = [
+                f
+                for f in (*OPTIONAL_FIELDS, INFLUENCE)
+                if f not in stored and not meta.has(f) and f in group
+            ]
             if extra:
                 raise format_error(
                     where, f"holds {extra} that the root attribute 'recorded' leaves out"
@@ -206,6 +215,18 @@ class _Reader:
             if dataset.ndim != len(FIELDS[field_name][1]):
                 raise format_error(where, f"{field_name} has shape {dataset.shape}")
             datasets[field_name] = dataset
+        if meta.has(INFLUENCE):
+            dataset = group.get(INFLUENCE)
+            dtype, shape = INFLUENCE_FIELD
+            if not isinstance(dataset, h5py.Dataset):
+                raise format_error(where, f"missing dataset {INFLUENCE!r}")
+            if dataset.dtype != dtype or dataset.ndim != len(shape):
+                raise format_error(
+                    where,
+                    f"{INFLUENCE} is {dataset.dtype} {dataset.shape}, expected {dtype} "
+                    f"(n, {len(INFLUENCE_KINDS)}, N, N)",
+                )
+            datasets[INFLUENCE] = dataset
         if self.shards is not None:
             datasets = self._mapped(group, datasets, where)
         return {field_name: dataset[()] for field_name, dataset in datasets.items()}
@@ -377,7 +398,7 @@ def summarize(path: str | os.PathLike) -> str:
         f"states:    {', '.join(meta.state_names)}; actions: "
         f"{', '.join(meta.action_names) or 'none'}",
         f"recorded:  {', '.join(meta.recorded) or 'none'} "
-        f"(of the optional {', '.join(OPTIONAL_FIELDS)})",
+        f"(of the optional {', '.join(RECORDABLE)})",
         "",
         "split   "
         + "".join(f"{c:>10}" for c in [*cases, "total"])
@@ -392,4 +413,70 @@ def summarize(path: str | os.PathLike) -> str:
             + "".join(f"{c:>10}" for c in counts)
             + f"   {mean_valid:>17}   {mean_focal:>12}"
         )
+    if meta.has(INFLUENCE):
+        lines += ["", *influence_lines(meta, splits)]
     return "\n".join(lines)
+
+
+def influence_rows(meta: DatasetMeta, splits: dict[str, TrajectorySet]) -> list[dict]:
+    """The labelled agents' influence against the others', over all splits: one row per kind
+    (INFLUENCE_KINDS), case and role of the attending agent i, pooling every window where i
+    attends to j (an attention label at any step): `pairs`, `labelled` (mean influence[i, j]
+    [m]), `strongest_other` (mean over windows of the largest influence[i, k] of any other agent
+    k, not i or j) and `share_above` (share of windows where influence[i, j] exceeds every
+    other's). Requires recorded influence and attention labels."""
+    if not (meta.has(INFLUENCE) and meta.has("attention")):
+        raise ValueError("the influence summary needs recorded influence and attention labels")
+    pooled: dict[tuple[int, int, int], list[tuple[float, float]]] = {}
+    for data in splits.values():
+        agents = np.arange(data.num_agents)
+        for window in range(data.n):
+            labels = data.attention[window]  # (T, N)
+            for i, j in _pairs(labels):
+                others = (agents != i) & (agents != j)
+                for kind in range(len(INFLUENCE_KINDS)):
+                    row = data.influence[window, kind, i]  # (N,) influence of each agent on i
+                    strongest = float(np.nanmax(row[others], initial=0.0))
+                    key = (kind, int(data.case[window]), int(data.roles[window, i]))
+                    pooled.setdefault(key, []).append((float(row[j]), strongest))
+    rows = []
+    for (kind, case, role), values in sorted(pooled.items()):
+        labelled, strongest = np.array(values).T
+        rows.append(
+            {
+                "kind": INFLUENCE_KINDS[kind],
+                "case": meta.case_names[case],
+                "role": meta.role_names[role],
+                "pairs": len(values),
+                "labelled": float(np.nanmean(labelled)),
+                "strongest_other": float(np.nanmean(strongest)),
+                "share_above": float(np.mean(labelled > strongest)),
+            }
+        )
+    return rows
+
+
+def _pairs(labels: np.ndarray) -> list[tuple[int, int]]:
+    """(attending agent, labelled agent) pairs of one window's labels (T, N), in order."""
+    steps, agents = np.nonzero(labels >= 0)
+    return sorted({(int(i), int(labels[t, i])) for t, i in zip(steps, agents)})
+
+
+def influence_lines(meta: DatasetMeta, splits: dict[str, TrajectorySet]) -> list[str]:
+    """`influence_rows` as the summary's table (or one line saying why there is none)."""
+    if not meta.has("attention"):
+        return ["influence: recorded (no attention labels to compare it with)"]
+    rows = influence_rows(meta, splits)
+    lines = [
+        "influence of the labelled agent on the attending one (ADE over the predicted steps "
+        "when removed) [m]:",
+        f"{'removed for':<12}{'case':<10}{'attending':<14}{'windows':>8}{'labelled':>10}"
+        f"{'max other':>11}{'labelled > all others':>23}",
+    ]
+    for row in rows:
+        lines.append(
+            f"{row['kind']:<12}{row['case']:<10}{row['role']:<14}{row['pairs']:>8}"
+            f"{row['labelled']:>10.3f}{row['strongest_other']:>11.3f}"
+            f"{100 * row['share_above']:>22.1f}%"
+        )
+    return lines
