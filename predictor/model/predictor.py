@@ -23,6 +23,8 @@ built and of what kind, and each part keeps the settings it reads:
 | `head`      | head              | F_pred (F_cov, F_roll): the Gaussian, scene or agent frame  |
 | `highway`   | highway_maps      | the linear highway's maps (`highway_steps`), or None; their |
 |             | (highway_refit)   | closed-form fits                                            |
+| `modes`     | modes             | the trajectory modes around the rollout (`modes` > 1), or   |
+|             |                   | None                                                        |
 
 This module runs the passes over them: the inputs of a pass (predictor.model.pass_inputs, with
 its neighbour graph), the teacher-forced steps in chunks, and the fed-back rollout.
@@ -43,7 +45,8 @@ self-loop; at t = 0, or when the agent was absent at t-1, the previous state is 
 and predicts the position at t+1. Its attention is theta^t. The state s_i is the 2-D position
 (the fed-back rollout only has positions).
 
-Rollout: from step T_obs on the model feeds back its samples (or means). With the anchored
+Rollout: from step T_obs on the model feeds back its samples (or means); `sample_rollouts`
+draws K futures by feeding back samples, the observed steps run once for all of them. With the anchored
 prior (`rollout_prior="anchored"`, the agent frame's head) every predicted step's mean is p^t
 plus the velocity at the last observed step, plus, with a highway, the velocity changes that
 its maps read from the agent's observed history (and the agents it attends to); the network
