@@ -46,12 +46,12 @@ and predicts the position at t+1. Its attention is theta^t. The state s_i is the
 (the fed-back rollout only has positions).
 
 Rollout: from step T_obs on the model feeds back its samples (or means); `sample_rollouts`
-draws K futures by feeding back samples, the observed steps run once for all of them. With the anchored
-prior (`rollout_prior="anchored"`, the agent frame's head) every predicted step's mean is p^t
-plus the velocity at the last observed step, plus, with a highway, the velocity changes that
-its maps read from the agent's observed history (and the agents it attends to); the network
-predicts the rest. With `frame="agent"` the model is equivariant to rotating and translating a
-scene (docs/PREDICTOR.md).
+draws K futures by feeding back samples, the observed steps run once for all of them. With
+the anchored prior (`rollout_prior="anchored"`, the agent frame's head) every predicted step's
+mean is p^t plus the velocity at the last observed step, plus, with a highway, the velocity
+changes that its maps read from the agent's observed history (and the agents it attends to);
+the network predicts the rest. With `frame="agent"` the model is equivariant to rotating and
+translating a scene (docs/PREDICTOR.md).
 
 Everything is batched over scenes, agents and edges; the only Python loop is over the time steps
 of the fed-back rollout. Absent agents have no edges, or (present at other steps of the window)
