@@ -28,6 +28,7 @@ from predictor.baselines import (
 )
 from predictor.checkpoints import CHECKPOINTS, CheckpointError, load_model
 from predictor.diagnostics import counterfactual_shift, error_curves, one_step_errors
+from predictor.faithfulness import faithfulness, with_ratio
 from predictor.forecasting import (
     EvaluationError,
     SampleSettings,
@@ -238,7 +239,7 @@ def evaluate_run(
         )
     variant = str(stored["train_config"]["variant"])
     sampling = sampling or SampleSettings()
-    passes = 2 + _counterfactual_passes(dataset.data.focal)
+    passes = 2 + _counterfactual_passes(dataset.data.focal) + _faithfulness_passes(dataset)
     stages = _Stages(variant, len(dataset), passes, progress)
     try:
         stages.stage("predictions" + (f" and {sampling.k} samples" if sampling.k else ""))
@@ -274,6 +275,7 @@ def evaluate_run(
         stages.advance(len(dataset))
         stages.stage("counterfactual")
         diagnostics.update(_common_diagnostics(dataset, pred_mean, predict))
+        faithful = _faithfulness(dataset, attention, pred_mean, predict, stages)
     finally:
         stages.close()
     source = RunSource(
@@ -296,6 +298,7 @@ def evaluate_run(
         diagnostics=diagnostics,
         distribution=(forecast.samples, forecast.nll),
         sampling=_sampling_record(sampling, f"{method}; NLL closed form"),
+        faithful=faithful,
     )
     return replace(evaluation, scenario_mismatch=mismatch)
 
@@ -320,7 +323,10 @@ def evaluate_baseline(
     dataset = _load_split(data_path, split)
     data = dataset.data
     sampling = sampling or SampleSettings()
-    stages = _Stages(name, data.n, 3 + _counterfactual_passes(data.focal), progress)
+    passes = 3 + _counterfactual_passes(data.focal) + _faithfulness_passes(dataset)
+    stages = _Stages(name, data.n, passes, progress)
+    shape = (data.n, data.num_steps - 1, data.num_agents, data.num_agents)
+    attention = np.full(shape, np.nan, dtype=np.float32)
     try:
         fit = None
         if name != "const_vel":
@@ -345,10 +351,9 @@ def evaluate_baseline(
 
         stages.stage("counterfactual")
         diagnostics = _common_diagnostics(dataset, pred_mean, predict)
+        faithful = _faithfulness(dataset, attention, pred_mean, predict, stages)
     finally:
         stages.close()
-    shape = (data.n, data.num_steps - 1, data.num_agents, data.num_agents)
-    attention = np.full(shape, np.nan, dtype=np.float32)
     if details:
         details = {"fit_split": fit_split, **details}
     return _evaluation(
@@ -361,6 +366,7 @@ def evaluate_baseline(
         diagnostics,
         distribution,
         _sampling_record(sampling, fitted.sampler),
+        faithful,
     )
 
 
@@ -437,6 +443,7 @@ def _evaluation(
     diagnostics: dict[str, Any] | None = None,
     distribution: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
     sampling: dict[str, Any] | None = None,
+    faithful: dict[str, Any] | None = None,
 ) -> Evaluation:
     samples, nll = distribution
     predictions = Predictions.from_split(
@@ -445,11 +452,14 @@ def _evaluation(
     threshold = (
         SampleSettings().miss_threshold_m if sampling is None else sampling["miss_threshold_m"]
     )
+    scores = score(predictions, nll, threshold)
+    if faithful is not None:
+        scores["faithfulness"] = with_ratio(faithful, scores["main_agents"]["overall"]["ade"])
     return Evaluation(
         predictor=predictor,
         data=str(Path(dataset.path).resolve()),
         meta=dataset.meta,
-        scores=score(predictions, nll, threshold),
+        scores=scores,
         predictions=predictions,
         source=source,
         baseline=baseline or None,
@@ -468,6 +478,31 @@ def _sampling_record(sampling: SampleSettings, method: str) -> dict[str, Any] | 
         "miss_threshold_m": sampling.miss_threshold_m,
         "method": method,
     }
+
+
+def _faithfulness_passes(dataset: TrajectoryDataset) -> int:
+    """How many predictions of the split `_faithfulness` makes (the removal test's one)."""
+    return int(dataset.data.influence is not None)
+
+
+def _faithfulness(
+    dataset: TrajectoryDataset, attention: np.ndarray, pred_mean: np.ndarray, predict, stages
+) -> dict:
+    """eval.json's `faithfulness` block (predictor.faithfulness, default settings): the
+    attention's total variation, and with the file's influence its AUROC and the removal test."""
+    data = dataset.data
+    if data.influence is not None:
+        stages.stage("faithfulness")
+    return faithfulness(
+        attention,
+        data.states,
+        data.valid,
+        data.focal,
+        data.influence,
+        dataset.meta.num_observed,
+        predict,
+        pred_mean,
+    )
 
 
 def _common_diagnostics(dataset: TrajectoryDataset, pred_mean: np.ndarray, predict) -> dict:

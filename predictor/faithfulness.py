@@ -163,7 +163,8 @@ def removal_shift(
         return record
     states, valid = states.copy(), valid.copy()
     valid[:, :num_observed] &= ~removed[:, None, :]
-    states[:, :num_observed] = np.where(removed[:, None, :, None], 0, states[:, :num_observed])
+    zero = np.zeros((), states.dtype)
+    states[:, :num_observed] = np.where(removed[:, None, :, None], zero, states[:, :num_observed])
     moved = predict(states, valid)
     mask = prediction_mask(valid, num_observed)  # the kept agents' own validity is unchanged
     dist = np.linalg.norm(moved - base, axis=-1)  # (n, P, N)
@@ -202,3 +203,51 @@ def attention_total_variation(
         value = float(diff[keep].mean()) if count and not nan else None
         record.update({name: value, f"{name}_count": count})
     return record
+
+
+def faithfulness(
+    attention: np.ndarray,
+    states: np.ndarray,
+    valid: np.ndarray,
+    focal: np.ndarray,
+    influence: np.ndarray | None,
+    num_observed: int,
+    predict: Predict | None = None,
+    base: np.ndarray | None = None,
+    settings: FaithfulnessSettings = FaithfulnessSettings(),
+) -> dict:
+    """eval.json's `faithfulness` block: "attention_tv" always; with `influence` (n, 2, N, N)
+    also "auroc" (+ "auroc_agents", "auroc_kind", "auroc_window") and, with `predict` and its
+    predictions `base`, "robustness_m" (+ "robustness_pairs", "removed_mean", "removal_kind"
+    and "robustness_ratio", robustness_m over the focal agents' ADE `ade_m`), "threshold_m"."""
+    block: dict = {"attention_tv": attention_total_variation(attention, valid, focal, num_observed)}
+    if influence is None:
+        return block
+    block["threshold_m"] = settings.threshold_m
+    auroc = attention_auroc(attention, influence, valid, focal, num_observed, settings)
+    block.update(
+        auroc=auroc["auroc"],
+        auroc_agents=auroc["agents"],
+        auroc_kind=auroc["kind"],
+        auroc_window=auroc["window"],
+    )
+    if predict is None or base is None:
+        return block
+    shift = removal_shift(predict, base, states, valid, influence, focal, num_observed, settings)
+    block.update(
+        robustness_m=shift["shift_m"],
+        robustness_pairs=shift["pairs"],
+        removed_mean=shift["removed_mean"],
+        removal_kind=shift["kind"],
+    )
+    return block
+
+
+def with_ratio(block: dict, ade_m: float | None) -> dict:
+    """`block` with "robustness_ratio": robustness_m over the focal agents' ADE `ade_m` (how
+    large the shift is against the prediction's own error; None where either is missing)."""
+    if "robustness_m" not in block:
+        return block
+    shift = block["robustness_m"]
+    ratio = shift / ade_m if shift is not None and ade_m else None
+    return {**block, "robustness_ratio": ratio}

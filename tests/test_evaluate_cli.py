@@ -382,4 +382,68 @@ def test_evaluation_library_matches_the_tool_and_an_independent_ade(smoke, tmp_p
         "attention_accuracy",
         "diagnostics",
         "sampling",
+        "faithfulness",
     }
+
+
+def with_influence(source: Path, target: Path) -> Path:
+    """A copy of the braking file whose splits record influence: each scene's focal agents
+    influenced by slot 2 alone (1 m), every other pair 0 (the braking scenes' other slots
+    influence nobody), so the removal test removes slot 3."""
+    import dataclasses
+
+    from trajectory_data.format import INFLUENCE, write_dataset
+    from trajectory_data.reader import read_dataset
+
+    meta, splits = read_dataset(source)
+    recorded = {}
+    for name, data in splits.items():
+        influence = np.zeros((data.n, 2, data.num_agents, data.num_agents), np.float32)
+        influence[:, :, :2, 2] = 1.0
+        recorded[name] = dataclasses.replace(data, influence=influence)
+    meta = dataclasses.replace(meta, recorded=(*meta.recorded, INFLUENCE))
+    return write_dataset(target, meta, recorded)
+
+
+def test_faithfulness_block_of_a_run_and_a_baseline(smoke, tmp_path, capsys):
+    from predictor.evaluation import evaluate_baseline, evaluate_run
+    from predictor.faithfulness import attention_auroc, attention_total_variation
+    from trajectory_data.reader import read_split
+
+    data = with_influence(smoke["data"], tmp_path / "influence.h5")
+    evaluation = evaluate_run(smoke["run"], data)
+    block = evaluation.to_dict()["faithfulness"]
+    p = evaluation.predictions
+    assert p.focal[:, :2].all() and not p.focal[:, 2:].any()
+    # the wiring: the same measures of the evaluation's own attention, valid and focal agents
+    tv = attention_total_variation(p.attention, p.valid, p.focal, p.num_observed)
+    assert block["attention_tv"] == tv and tv["predicted"] > 0 and tv["observed_count"] > 0
+    test = read_split(data, "test")
+    auroc = attention_auroc(p.attention, test.influence, p.valid, p.focal, p.num_observed)
+    assert block["auroc"] == auroc["auroc"] and block["auroc_agents"] == auroc["agents"] > 0
+    assert 0 <= block["auroc"] <= 1 and block["threshold_m"] == 0.01
+    # the model reads its neighbours: removing slot 3 moves its predictions
+    assert block["robustness_m"] > 0 and block["removed_mean"] == 1.0
+    assert block["robustness_ratio"] == pytest.approx(
+        block["robustness_m"] / evaluation.scores["main_agents"]["overall"]["ade"]
+    )
+    # constant velocity reads no neighbours: a shift of exactly 0, attention measures None
+    baseline = evaluate_baseline("const_vel", data, "test").to_dict()["faithfulness"]
+    assert baseline["robustness_m"] == 0.0 and baseline["robustness_pairs"] > 0
+    assert baseline["auroc"] is None and baseline["attention_tv"]["predicted"] is None
+    # without influence only the total variation is measured
+    plain = evaluate_run(smoke["run"], smoke["data"]).to_dict()["faithfulness"]
+    assert set(plain) == {"attention_tv"} and plain["attention_tv"] == tv
+    # the tool prints one line with the parts that exist
+    out = tmp_path / "e.json"
+    argv = ["--run", str(smoke["run"]), "--data", str(data), "--out", str(out), "--no-progress"]
+    load_tool("evaluate.py").main(argv)
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("faithfulness"))
+    assert f"attention AUROC {block['auroc']:.3f} against influence > 0.01 m" in line
+    assert f"removed {block['robustness_m']:.3f} m" in line and "attention TV per step" in line
+    tool = load_tool("evaluate.py")
+    assert tool.format_faithfulness(baseline) == (
+        f"faithfulness: shift when agents without influence are removed 0.000 m, 0.00 x ADE "
+        f"({baseline['robustness_pairs']} pairs)"
+    )
+    assert tool.format_faithfulness({"attention_tv": {"observed": None, "predicted": None}}) == ""

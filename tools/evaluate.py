@@ -219,6 +219,35 @@ def format_diagnostics(diagnostics: dict | None, words: Wording | None = None) -
     return "\n".join(lines)
 
 
+def format_faithfulness(block: dict | None) -> str:
+    """One line of the attention faithfulness measures that exist (predictor.faithfulness):
+    AUROC against the influence, the removal shift, the attention's total variation; empty
+    where none does (a baseline on data without influence)."""
+    if not block:
+        return ""
+    parts = []
+    if block.get("auroc") is not None:
+        parts.append(
+            f"attention AUROC {block['auroc']:.3f} against influence > {block['threshold_m']} m "
+            f"({block['auroc_agents']} agents)"
+        )
+    if block.get("robustness_m") is not None:
+        ratio = block.get("robustness_ratio")
+        share = "" if ratio is None else f", {ratio:.2f} x ADE"
+        parts.append(
+            f"shift when agents without influence are removed {block['robustness_m']:.3f} m"
+            f"{share} ({block['robustness_pairs']} pairs)"
+        )
+    tv = block.get("attention_tv") or {}
+    steps = [(name, tv.get(name)) for name in ("observed", "predicted")]
+    if any(value is not None for _, value in steps):
+        parts.append(
+            "attention TV per step "
+            + ", ".join(f"{value:.4f} {name}" for name, value in steps if value is not None)
+        )
+    return "faithfulness: " + "; ".join(parts) if parts else ""
+
+
 def _row(group: dict, name: str) -> dict:
     return group["overall"] if name == "overall" else group["cases"][name]
 
@@ -266,6 +295,9 @@ def main(argv: list[str] | None = None) -> None:
         print(note)
     print(format_table(result, evaluation.meta.case_names, evaluation.words))
     print(format_diagnostics(result.get("diagnostics"), evaluation.words))
+    faithful = format_faithfulness(result.get("faithfulness"))
+    if faithful:
+        print(faithful)
     if npz_out is not None:
         with writing(npz_out) as temp:
             evaluation.save_predictions(temp)
