@@ -553,3 +553,63 @@ def test_size_series_from_hand_made_runs():
     mean, std = figures.series(results, ["hc_go", "missing"], "s_attn", Measure("fde", "minor"))
     np.testing.assert_allclose(mean, [16.0, np.nan])  # 2 x minor ADE 8 in both seeds
     np.testing.assert_allclose(std, [0.0, 0.0])
+
+
+def with_faithfulness(result: dict, auroc: float | None, shift: float, tv: float | None) -> dict:
+    """`result` with an eval.json `faithfulness` block (predictor.faithfulness)."""
+    block = {
+        "attention_tv": {
+            "observed": tv,
+            "observed_count": 4,
+            "predicted": tv,
+            "predicted_count": 4,
+        },
+        "threshold_m": 0.01,
+        "auroc": auroc,
+        "auroc_agents": 3,
+        "robustness_m": shift,
+        "robustness_pairs": 2,
+    }
+    return {**result, "faithfulness": block}
+
+
+def test_faithfulness_is_recorded_and_tabled_only_where_measured():
+    """Ours: AUROC 0.6, 0.8, shift 0.1, 0.3 m, TV 0.02, 0.04; Const-Vel: shift 0, no attention;
+    a baseline evaluated on data without influence records nothing (all None)."""
+    runs = [
+        RunRecord.from_eval("hc_go", "ours", s, with_faithfulness(fake_eval(*ADE_FDE), a, m, t))
+        for s, (a, m, t) in enumerate([(0.6, 0.1, 0.02), (0.8, 0.3, 0.04)])
+    ]
+    runs.append(
+        RunRecord.from_eval(
+            "hc_go", "const_vel", 0, with_faithfulness(fake_eval(*ADE_FDE), None, 0.0, None)
+        )
+    )
+    unmeasured = {"attention_tv": {"observed": None, "predicted": None}}
+    nothing = RunRecord.from_eval(
+        "hc_go", "s_attn", 0, {**fake_eval(*ADE_FDE), "faithfulness": unmeasured}
+    )
+    assert nothing.faithfulness is None and "faithfulness" not in nothing.to_json()
+    assert hand_runs()[0].faithfulness is None
+    assert runs[0].to_json()["faithfulness"] == {
+        "auroc": 0.6,
+        "robustness_m": 0.1,
+        "tv_observed": 0.02,
+        "tv_predicted": 0.02,
+    }
+    text = section([*runs, nothing])
+    lines = text.splitlines()
+    start = next(k for k, line in enumerate(lines) if line.startswith("Attention faithfulness"))
+    assert lines[start + 2] == (
+        "| variant | attn. AUROC | removal shift [m] | attn. TV observed | attn. TV predicted "
+        "| runs |"
+    )
+    assert lines[start + 4 : start + 7] == [
+        "| Ours | 0.700 ± 0.141 | 0.200 ± 0.141 | 0.030 ± 0.014 | 0.030 ± 0.014 | 2 |",
+        "| Const-Vel | n/a | 0.000 | n/a | n/a | 1 |",
+        "",
+    ]
+    plain = section([*hand_runs(), nothing])
+    assert "faithfulness" not in plain
+    block = "\n".join(lines[start : start + 6]) + "\n\n"
+    assert text.count(block) == 1

@@ -26,7 +26,13 @@ from pipeline.report.records import (
     compared_variant,
     label,
 )
-from pipeline.report.statistics import ALPHA, ALPHA_S_ATTN, STATISTICS, size_margins
+from pipeline.report.statistics import (
+    ALPHA,
+    ALPHA_S_ATTN,
+    STATISTICS,
+    size_margins,
+    summarize,
+)
 from predictor.registry import FIXED_ATTENTION  # nothing learned to score
 
 if TYPE_CHECKING:
@@ -158,6 +164,44 @@ def sample_section(
         "mean ± std over the runs with samples."
     )
     return lead + "\n\n" + table(header + ["runs"], rows)
+
+
+FAITHFULNESS_NAMES = {
+    "auroc": "attn. AUROC",
+    "robustness_m": "removal shift [m]",
+    "tv_observed": "attn. TV observed",
+    "tv_predicted": "attn. TV predicted",
+}
+
+
+def faithfulness_section(results: Results, setting: str, variants: Sequence[str]) -> str | None:
+    """Attention faithfulness of the main cars (eval.json's `faithfulness`,
+    predictor.faithfulness), mean ± std over each variant's runs that measured it; None where
+    no run of the setting did (runs evaluated before it existed), so the report shows nothing."""
+    rows = []
+    for variant in variants:
+        measured = [
+            run.faithfulness
+            for run in results.runs
+            if run.setting == setting and run.variant == variant and run.faithfulness is not None
+        ]
+        if not measured:
+            continue
+        cells = [
+            fmt(summarize(values.get(name) for values in measured), 3)
+            for name in FAITHFULNESS_NAMES
+        ]
+        rows.append([label(variant), *cells, str(len(measured))])
+    if not rows:
+        return None
+    lead = (
+        "Attention faithfulness (`predictor.faithfulness`): the attention's AUROC against the "
+        "influence matrices (influence > 0.01 m), the change of a main car's prediction when "
+        "every car without influence on the main cars is removed (CausalAgents' robustness "
+        "test, Roelofs et al. 2022), and the attention's total variation per step; mean ± std "
+        "over the runs that measured them."
+    )
+    return lead + "\n\n" + table(["variant", *FAITHFULNESS_NAMES.values(), "runs"], rows)
 
 
 def pvalue_table(results: Results, setting: str) -> str:
@@ -455,6 +499,9 @@ def setting_section(report: Report, setting) -> list[str]:
     sampled = sample_section(results, setting.name, variants, names)
     if sampled is not None:
         parts += [sampled, ""]
+    faithful = faithfulness_section(results, setting.name, variants)
+    if faithful is not None:
+        parts += [faithful, ""]
     parts += [
         pvalue_table(results, setting.name),
         "",

@@ -37,6 +37,16 @@ GROUPED: tuple[Quantity, ...] = (*METRICS, *SAMPLED)  # scored per agent group
 # model must clear), their labels: predictor.registry
 BASELINES = REPORTED_BASELINES
 
+# eval.json's `faithfulness` block (predictor.faithfulness) as a run records it: name -> the
+# path of keys in the block; runs evaluated before it existed, and baselines on data without
+# influence (nothing measured), record none, and the report shows nothing of them
+FAITHFULNESS: Mapping[str, tuple[str, ...]] = {
+    "auroc": ("auroc",),
+    "robustness_m": ("robustness_m",),
+    "tv_observed": ("attention_tv", "observed"),
+    "tv_predicted": ("attention_tv", "predicted"),
+}
+
 PRESET_MARK = "@"  # "ours@agent_zero_cv": a variant trained under a compared preset
 
 
@@ -108,6 +118,8 @@ class RunRecord:
     graph_step: str | None = None
     sample_k: int | None = None  # K sampled futures per agent behind SAMPLE_MEASURES (None: none)
     miss_threshold_m: float | None = None  # [m] of the miss rate (None: eval.json records none)
+    # FAITHFULNESS's values (None: eval.json measures none of them)
+    faithfulness: Mapping[str, float | None] | None = None
 
     @classmethod
     def from_eval(cls, setting: str, variant: str, seed: int, result: dict) -> RunRecord:
@@ -152,6 +164,7 @@ class RunRecord:
             result.get("graph_step", "eager" if result.get("best_epoch") is not None else None),
             None if sample_k is None else int(sample_k),
             (result.get("sampling") or {}).get("miss_threshold_m") if sample_k else None,
+            faithfulness_values(result.get("faithfulness")),
         )
 
     def to_json(self) -> dict:
@@ -166,6 +179,7 @@ class RunRecord:
             "code": self.code,
             "graph_step": self.graph_step,
             **self.sampling_json(),
+            **({} if self.faithfulness is None else {"faithfulness": dict(self.faithfulness)}),
             **nested(self.values),
         }
 
@@ -175,6 +189,17 @@ class RunRecord:
         if self.sample_k is None:
             return {}
         return {"sample_k": self.sample_k, "miss_threshold_m": self.miss_threshold_m}
+
+
+def faithfulness_values(block: dict | None) -> dict[str, float | None] | None:
+    """FAITHFULNESS's values of an eval.json `faithfulness` block; None where it has none."""
+    values: dict[str, float | None] = {}
+    for name, path in FAITHFULNESS.items():
+        value: Any = block
+        for key in path:
+            value = value.get(key) if isinstance(value, dict) else None
+        values[name] = None if value is None else float(value)
+    return values if any(v is not None for v in values.values()) else None
 
 
 @dataclass(frozen=True)
