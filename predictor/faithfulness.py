@@ -42,8 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from predictor.metrics import focal_slots, gather_agents, prediction_mask
+from trajectory_data.format import INFLUENCE_KINDS  # axis 1 of TrajectorySet.influence
 
-INFLUENCE_KINDS = ("episode", "predicted")  # axis 1 of TrajectorySet.influence
 WINDOWS = ("predicted", "last_observed")  # attention steps scored by attention_auroc
 
 Predict = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (states, valid) -> (n, P, N, 2)
