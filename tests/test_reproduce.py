@@ -122,8 +122,9 @@ def test_quick_run_writes_markdown_with_tables(quick):
         ours = [line for line in lines if line.startswith(f"| `{setting}` | Ours ")]
         bar = [line for line in ours if "| major |" in line or "| minor |" in line]
         assert len(ours) - len(bar) == 4  # the claims table's rows
-    # main-car and all-agent tables, and the main cars' sampled scores (runs evaluate K = 20)
-    assert sum(line.startswith("| Ours | ") for line in lines) == 3 * len(SETTINGS)
+    # main-car and all-agent tables, the main cars' sampled scores (runs evaluate K = 20) and
+    # the attention's faithfulness (its total variation, measured for every run with attention)
+    assert sum(line.startswith("| Ours | ") for line in lines) == 4 * len(SETTINGS)
     for case in ("major", "minor"):  # the bar: Ours (and Ours [paper]) against the oracle ridges
         for model, settings in (("Ours", SETTINGS), ("Ours [paper]", ("dm_r0.3", "hc_stop"))):
             rows = [f"| `{s}` | {model} | {case} | " for s in settings]
