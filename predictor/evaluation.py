@@ -286,7 +286,7 @@ def evaluate_run(
     )
     method = {
         "marginal": "one draw per future through its steps' Gaussians",
-        "rollout": ("sampled rollout (the paper's)"),
+        "rollout": "sampled rollout (the paper's)",
     }[sampling.method]
     method = f"a mode by its weight, then {method}" if model.modes is not None else method
     evaluation = _evaluation(
