@@ -244,7 +244,8 @@ class Lane:
             rel_x, rel_y = xy[..., 0] - pose_xy[0], xy[..., 1] - pose_xy[1]
             along = rel_x * np.cos(pose_h) + rel_y * np.sin(pose_h)
             across = -rel_x * np.sin(pose_h) + rel_y * np.cos(pose_h)
-            outside = at_end & ((along < 0) if before else (along > 0))
+            # the tolerance keeps points level with an end (rounding of cos(pi / 2)) at s_end
+            outside = at_end & ((along < -1e-9) if before else (along > 1e-9))
             best_s = np.where(outside, s_end + along, best_s)
             best_d = np.where(outside, across, best_d)
         return best_s, best_d, best_distance
