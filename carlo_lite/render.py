@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from carlo_lite.layouts import RoadLayout
 from carlo_lite.world import World
 
 # Colours (RGB) by role; the paper draws the two main cars green and brown, the others white.
@@ -115,6 +116,11 @@ def render_rgb(
     frame = np.empty((height_px, width_px, 3), dtype=np.uint8)
     frame[:] = GRASS_COLOR
     _draw_road(frame, world, view)
+    _draw_cars(frame, world, view)
+    return frame
+
+
+def _draw_cars(frame: np.ndarray, world: World, view: View) -> None:
     xs, ys = view.pixel_centres()
     outline = 2.0 * view.metres_per_px
     for car in np.nonzero(world.active)[0]:
@@ -123,6 +129,41 @@ def render_rgb(
         color = ROLE_COLORS.get(world.roles[car], DEFAULT_CAR_COLOR)
         _draw_box(frame, view, xs, ys, center, heading, length, width, OUTLINE_COLOR)
         _draw_box(frame, view, xs, ys, center, heading, length - outline, width - outline, color)
+
+
+def render_layout(
+    layout: RoadLayout,
+    width_px: int = 600,
+    height_px: int = 600,
+    center_xy: tuple[float, float] | None = None,
+    metres_per_px: float | None = None,
+    world: World | None = None,
+) -> np.ndarray:
+    """A top-down picture (height_px, width_px, 3) uint8 of any `RoadLayout` (intersection,
+    roundabout, `StraightRoad.layout()`), and of the active cars of `world` if given.
+
+    Road pixels are those whose centre lies on some lane; road pixels next to an off-road pixel
+    are drawn as the edge line. By default the view fits the whole layout.
+    """
+    if width_px < 1 or height_px < 1:
+        raise ValueError("frame size must be at least 1 x 1 pixel")
+    x_min, y_min, x_max, y_max = layout.bounds(margin_m=2.0)
+    if metres_per_px is None:
+        metres_per_px = max((x_max - x_min) / width_px, (y_max - y_min) / height_px)
+    if center_xy is None:
+        center_xy = ((x_min + x_max) / 2, (y_min + y_max) / 2)
+    view = View(center_xy, metres_per_px, width_px, height_px)
+    xs, ys = view.pixel_centres()
+    grid = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None]), axis=-1)  # (H, W, 2)
+    road = layout.on_road(grid)
+    padded = np.pad(road, 1, mode="edge")
+    edge = road & ~(padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2] & padded[1:-1, 2:])
+    frame = np.empty((height_px, width_px, 3), dtype=np.uint8)
+    frame[:] = GRASS_COLOR
+    frame[road] = ROAD_COLOR
+    frame[edge] = MARKING_COLOR
+    if world is not None:
+        _draw_cars(frame, world, view)
     return frame
 
 

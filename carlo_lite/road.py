@@ -1,8 +1,10 @@
 """Road geometry: lanes as geometric objects and a straight multi-lane road built from them.
 
-A lane is geometry (a reference line with a width), not a number, so curved lanes can be added
-later by implementing the same three methods. Coordinates are SI metres; the road frame is
-(s, d): s along the road from its start, d lateral from its right edge, positive to the left.
+A lane is geometry (a reference line with a width), not a number; curved lanes live in
+`carlo_lite.lanes` (`Lane`: segments and arcs) and `StraightLane.as_lane()` /
+`StraightRoad.layout()` express this road in that model. Coordinates are SI metres; the road
+frame is (s, d): s along the road from its start, d lateral from its right edge, positive to the
+left.
 """
 
 from __future__ import annotations
@@ -11,6 +13,9 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+
+from carlo_lite.lanes import Lane, Segment
+from carlo_lite.layouts import RoadLayout
 
 
 @dataclass(frozen=True)
@@ -54,6 +59,10 @@ class StraightLane:
         rel_y = xy[..., 1] - self.start[1]
         ux, uy = self._direction
         return rel_x * ux + rel_y * uy, -rel_x * uy + rel_y * ux
+
+    def as_lane(self) -> Lane:
+        """This lane in the general lane model: one straight `Segment`, same frame (s, d)."""
+        return Lane((Segment(self.start, self.end),), self.width_m)
 
 
 @dataclass(frozen=True)
@@ -118,6 +127,11 @@ class StraightRoad:
         index = np.floor(d / self.lane_width_m).astype(np.int64)
         on_road = (d >= 0) & (d < self.width_m) & (s >= 0) & (s <= self.length_m)
         return np.where(on_road, index, -1)
+
+    def layout(self) -> RoadLayout:
+        """This road as a `RoadLayout` of its lanes (`lane_0` on the right edge, ...), for the
+        layout-generic off-road checks and rendering; the fast paths above stay as they are."""
+        return RoadLayout({f"lane_{i}": lane.as_lane() for i, lane in enumerate(self.lanes)})
 
     def edge_segments(self) -> tuple[tuple[tuple[float, float], tuple[float, float]], ...]:
         """The road edges as world-frame segments ((x0, y0), (x1, y1))."""
