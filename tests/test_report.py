@@ -14,7 +14,7 @@ import pytest
 from scipy import stats
 
 from pipeline.protocol import SETTING_BY_NAME, Protocol
-from pipeline.report import context, figures, markdown, records, statistics
+from pipeline.report import context, figures, markdown, records, statistics, tables
 from pipeline.report.records import (
     MEASURES,
     CaseNames,
@@ -321,7 +321,7 @@ def test_size_claim_needs_a_shrinking_margin(ours_by_size, verdict):
 def test_results_table_with_attention_columns():
     results = statistics.analyse(hand_runs())
     names = CaseNames("go", "stop")
-    lines = markdown.results_table(
+    lines = tables.results_table(
         results, "hc_go", ("ours", "nonsmooth", "const_vel"), "main_agents", names
     ).splitlines()
     assert lines[0].startswith("| variant | major (go) ADE | major (go) FDE | minor (stop) ADE")
@@ -371,13 +371,11 @@ def test_a_setting_with_samples_shows_their_table_and_one_without_none():
     assert lines[start + 6] == ""  # Const-Vel and NonSmooth have no row
     block = "\n".join(lines[start : start + 6]) + "\n\n"
     assert sampled.count(block) == 1 and sampled.replace(block, "") == plain  # else unchanged
-    assert (
-        markdown.sample_section(statistics.analyse(hand_runs()), "hc_go", ("ours",), None) is None
-    )
+    assert tables.sample_section(statistics.analyse(hand_runs()), "hc_go", ("ours",), None) is None
     mixed = sampled_runs()[:2] + [
         RunRecord.from_eval("hc_go", "s_attn", 0, with_samples(fake_eval(*ADE_FDE), 0, 5, None))
     ]
-    text = markdown.sample_section(
+    text = tables.sample_section(
         statistics.analyse(mixed), "hc_go", ("ours", "s_attn"), CaseNames("go", "stop")
     )
     assert "K = 5, 20 per car" in text and "| major (go) minADE_K |" in text
