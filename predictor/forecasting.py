@@ -13,13 +13,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from predictor.baselines import (
-    BASELINES,
-    RidgeBaseline,
-    RidgeConfig,
-    constant_velocity,
-    constant_velocity_samples,
-)
+from predictor.baseline_samples import RidgeDistribution, constant_velocity_samples
+from predictor.baselines import BASELINES, RidgeBaseline, RidgeConfig, constant_velocity
 from predictor.metrics import attention_accuracy, displacement_metrics, prediction_mask
 from predictor.model import SmoothAttentionPredictor
 from predictor.outputs import TrajectoryMixture, expand_attention
@@ -238,10 +233,12 @@ def fit_baseline(name: str, meta: DatasetMeta, fit: TrajectorySet | None = None)
         "alpha": {meta.role_names[role]: alpha for role, alpha in sorted(ridge.alpha.items())},
     }
 
+    spread = RidgeDistribution(ridge)
+
     def ridge_distribution(data: TrajectorySet, k: int, seed: int):
-        mean, tril = ridge.step_gaussians(data, meta)
+        mean, tril = spread.step_gaussians(data, meta)
         nll = gaussian_nll(data.states[:, num_observed:, :, :2], mean, tril)
-        return ridge.sample_set(data, meta, k, seed), nll
+        return spread.sample_set(data, meta, k, seed), nll
 
     return FittedBaseline(
         lambda data: ridge.predict_set(data, meta),

@@ -8,12 +8,15 @@ import numpy as np
 import pytest
 from test_baselines import DT, OBSERVED, STEPS, fitted, predict, random_agents
 
-from predictor.baselines import (
+from predictor.baseline_samples import (
     CVM_S_ANGLE_STD_RAD,
+    RidgeDistribution,
+    constant_velocity_samples,
+)
+from predictor.baselines import (
     RidgeBaseline,
     RidgeConfig,
     constant_velocity,
-    constant_velocity_samples,
     zero_mean_gaussian,
 )
 from predictor.probabilistic import gaussian_nll
@@ -95,7 +98,7 @@ def test_ridge_residual_gaussian_recovers_the_future_noise():
     test = noisy_futures(rng, 200)
     roles = np.zeros((200, 3), np.int8)
     valid, attention = np.ones(test.shape[:3], bool), np.full(test.shape[:3], -1, np.int16)
-    mean, tril = model.step_gaussians_of(test, valid, attention, roles)
+    mean, tril = RidgeDistribution(model).step_gaussians_of(test, valid, attention, roles)
     np.testing.assert_array_equal(mean, predict(model, test, roles))
     nll = gaussian_nll(test[:, OBSERVED:, :, :2], mean, tril)
     expected = np.log(2 * np.pi * SPREAD_ALONG * SPREAD_ACROSS) + 1
@@ -109,10 +112,12 @@ def test_ridge_samples_follow_its_step_gaussians_and_fallback_agents_are_isotrop
     roles = np.zeros((2, 3), np.int8)
     valid, attention = np.ones(test.shape[:3], bool), np.full(test.shape[:3], -1, np.int16)
     valid[:, OBSERVED - 3, 2] = False  # agent 2: incomplete history, constant velocity
-    samples = model.sample(test, valid, attention, roles, 4000, seed=3)
+    samples = RidgeDistribution(model).sample(test, valid, attention, roles, 4000, seed=3)
     assert samples.shape == (2, 4000, STEPS - OBSERVED, 3, 2) and samples.dtype == np.float32
-    np.testing.assert_array_equal(samples, model.sample(test, valid, attention, roles, 4000, 3))
-    mean, tril = model.step_gaussians_of(test, valid, attention, roles)
+    np.testing.assert_array_equal(
+        samples, RidgeDistribution(model).sample(test, valid, attention, roles, 4000, 3)
+    )
+    mean, tril = RidgeDistribution(model).step_gaussians_of(test, valid, attention, roles)
     np.testing.assert_array_equal(
         mean[:, :, 2], constant_velocity(test[..., :2], valid, OBSERVED)[:, :, 2]
     )
@@ -130,7 +135,7 @@ def test_ridge_samples_follow_its_step_gaussians_and_fallback_agents_are_isotrop
     np.testing.assert_allclose(spread, SPREAD_ALONG**2, rtol=0.2)
     assert np.all(tril[:, :, 2, 1] == 0) and np.allclose(tril[:, :, 2, 0], tril[:, :, 2, 2])
     with pytest.raises(ValueError, match="fit"):
-        RidgeBaseline().sample(test, valid, attention, roles, 2, 0)
+        RidgeDistribution(RidgeBaseline()).sample(test, valid, attention, roles, 2, 0)
 
 
 def test_ridge_sample_set_and_step_gaussians_read_a_split_as_the_arrays():
@@ -160,6 +165,12 @@ def test_ridge_sample_set_and_step_gaussians_read_a_split_as_the_arrays():
     model = RidgeBaseline(RidgeConfig(history_steps=4)).fit_set(split, meta)
     xyh = states[..., :3]  # x, y, heading: what ridge_states picks
     arrays = (xyh, split.valid, split.attention, split.roles)
-    np.testing.assert_array_equal(model.sample_set(split, meta, 5, 2), model.sample(*arrays, 5, 2))
-    for got, want in zip(model.step_gaussians(split, meta), model.step_gaussians_of(*arrays)):
+    np.testing.assert_array_equal(
+        RidgeDistribution(model).sample_set(split, meta, 5, 2),
+        RidgeDistribution(model).sample(*arrays, 5, 2),
+    )
+    for got, want in zip(
+        RidgeDistribution(model).step_gaussians(split, meta),
+        RidgeDistribution(model).step_gaussians_of(*arrays),
+    ):
         np.testing.assert_array_equal(got, want)

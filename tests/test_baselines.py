@@ -169,8 +169,8 @@ def test_shuffled_neighbour_is_the_labelled_car_of_another_scene():
     shuffled_config = RidgeConfig(history_steps=4, neighbours="shuffled", seed=3)
     shuffled = fitted(states, roles, shuffled_config, attention)
     own = labelled.own_features
-    theirs, _, _ = labelled._features(states, valid, attention)
-    moved, _, _ = shuffled._features(states, valid, attention)
+    theirs, _, _ = labelled.features(states, valid, attention)
+    moved, _, _ = shuffled.features(states, valid, attention)
     np.testing.assert_array_equal(moved[:, :, :own], theirs[:, :, :own])
     np.testing.assert_array_equal(moved[:, :, own:], theirs[order, :, own:])
     assert not np.array_equal(moved[:, :, own:], theirs[:, :, own:])

@@ -154,7 +154,7 @@ def test_ridge_without_heading_uses_the_last_displacement() -> None:
         ridge = RidgeBaseline(RidgeConfig(history_steps=3, folds=3))
         ridge.fit(states, valid, labels, roles, meta.num_observed, meta.dt)
         assert ridge.predict(states, valid, labels, roles).shape == (n, 3, agents, 2)
-        features.append(ridge._features(states, valid, labels)[0])  # (n, N, 3 * 2 + 2 * 2)
+        features.append(ridge.features(states, valid, labels)[0])  # (n, N, 3 * 2 + 2 * 2)
     last_lateral = [5, 9]  # the last velocity's y and the last acceleration's y
     np.testing.assert_array_equal(features[0][..., 5], 0.0)
     assert 0 < np.abs(features[1][..., 5]).max() < 1e-9  # rounding noise with the channel
