@@ -1,4 +1,5 @@
-"""Checkpoints: the files training writes (`best.pt`, `last.pt`) and how they are read back.
+"""Checkpoints: the files training writes (`best.pt`, `last.pt`), how they are read back, and
+whether a data file is of the kind a checkpoint's run was trained on (`check_data_matches`).
 
 A checkpoint is a plain dict that loads with `torch.load(weights_only=True)`: `format`,
 `version`, `model_state`, `model_config`, `train_config` (plain dicts), `epoch`, `data` (file
@@ -9,13 +10,16 @@ option this version no longer has, is a `CheckpointError` of one line.
 
 from __future__ import annotations
 
+import math
 import os
 
 import torch
 
 from predictor.config import ModelConfig
+from predictor.forecasting import EvaluationError
 from predictor.model import SmoothAttentionPredictor
 from predictor.stored_config import RemovedOptionError, model_config_from_dict
+from trajectory_data.format import DatasetMeta
 
 CHECKPOINT_FORMAT = "smooth-attention-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -57,3 +61,62 @@ def load_model(path: str | os.PathLike) -> tuple[SmoothAttentionPredictor, dict]
         raise CheckpointError(f"{path}: inconsistent checkpoint ({err})") from None
     model.eval()
     return model, checkpoint
+
+
+MATCHED_DATA = ("scenario", "dt", "num_observed", "num_predicted")  # run vs evaluated file
+
+
+class ScenarioMismatchError(EvaluationError):
+    """The evaluated file is of another scenario than the run was trained on, while its dt,
+    horizons and agent count match: `evaluate_run(..., allow_scenario_mismatch=True)` evaluates
+    it anyway. `trained` and `evaluated` are the two scenario names."""
+
+    def __init__(self, message: str, trained: str, evaluated: str) -> None:
+        super().__init__(message)
+        self.trained, self.evaluated = trained, evaluated
+
+    def __reduce__(self):  # picklable across process pools
+        return (type(self), (str(self), self.trained, self.evaluated))
+
+
+def check_data_matches(
+    checkpoint: dict,
+    meta: DatasetMeta,
+    checkpoint_path: str | os.PathLike,
+    data_path: str | os.PathLike,
+    allow_scenario_mismatch: bool = False,
+    num_agents: int | None = None,
+) -> tuple[str, str] | None:
+    """Check that `meta` has the scenario, dt and horizons the checkpoint's run was trained on
+    (`MATCHED_DATA`); returns None, or with `allow_scenario_mismatch` the (trained, evaluated)
+    scenario names where only the scenario differs.
+
+    Another scenario is evaluated only when asked and when dt, the horizons and the agent count
+    (`num_agents` of the evaluated file, checked where the run recorded its own) match:
+    otherwise ScenarioMismatchError (a scenario alone differs, not asked) or EvaluationError.
+    """
+    trained = checkpoint.get("data")
+    if not isinstance(trained, dict) or any(key not in trained for key in MATCHED_DATA):
+        raise CheckpointError(f"{checkpoint_path}: inconsistent checkpoint (no data description)")
+    now_values = {key: getattr(meta, key) for key in MATCHED_DATA}
+    differ = [key for key in MATCHED_DATA if not _same(trained[key], now_values[key])]
+    if differ == ["scenario"] and num_agents is not None and "num_agents" in trained:
+        # the model reads any number of agents of its own scenario, not of another's
+        now_values["num_agents"] = num_agents
+        differ += [] if trained["num_agents"] == num_agents else ["num_agents"]
+    if not differ:
+        return None
+    was = ", ".join(f"{key} {trained[key]!r}" for key in differ)
+    now = ", ".join(f"{key} {now_values[key]!r}" for key in differ)
+    message = f"{checkpoint_path} was trained on data with {was}, but {data_path} has {now}"
+    if differ != ["scenario"]:
+        raise EvaluationError(message)
+    if not allow_scenario_mismatch:
+        raise ScenarioMismatchError(message, str(trained["scenario"]), meta.scenario)
+    return str(trained["scenario"]), meta.scenario
+
+
+def _same(a: object, b: object) -> bool:
+    if isinstance(a, float) or isinstance(b, float):
+        return math.isclose(float(a), float(b), rel_tol=1e-9)
+    return a == b

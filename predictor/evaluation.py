@@ -26,7 +26,11 @@ from tqdm import tqdm
 from predictor.baselines import (
     BASELINES,
 )
-from predictor.checkpoints import CHECKPOINTS, CheckpointError, load_model
+from predictor.checkpoints import (
+    CHECKPOINTS,
+    check_data_matches,
+    load_model,
+)
 from predictor.diagnostics import counterfactual_shift, error_curves, one_step_errors
 from predictor.faithfulness import faithfulness, with_ratio
 from predictor.forecasting import (
@@ -43,8 +47,6 @@ from predictor.predictions import Predictions
 from predictor.wording import Wording
 from trajectory_data.format import DatasetMeta
 from trajectory_data.torch_dataset import TrajectoryDataset
-
-MATCHED_DATA = ("scenario", "dt", "num_observed", "num_predicted")  # run vs evaluated file
 
 
 def json_safe(value: Any) -> Any:
@@ -368,62 +370,6 @@ def evaluate_baseline(
         _sampling_record(sampling, fitted.sampler),
         faithful,
     )
-
-
-class ScenarioMismatchError(EvaluationError):
-    """The evaluated file is of another scenario than the run was trained on, while its dt,
-    horizons and agent count match: `evaluate_run(..., allow_scenario_mismatch=True)` evaluates
-    it anyway. `trained` and `evaluated` are the two scenario names."""
-
-    def __init__(self, message: str, trained: str, evaluated: str) -> None:
-        super().__init__(message)
-        self.trained, self.evaluated = trained, evaluated
-
-    def __reduce__(self):  # picklable across process pools
-        return (type(self), (str(self), self.trained, self.evaluated))
-
-
-def check_data_matches(
-    checkpoint: dict,
-    meta: DatasetMeta,
-    checkpoint_path: str | os.PathLike,
-    data_path: str | os.PathLike,
-    allow_scenario_mismatch: bool = False,
-    num_agents: int | None = None,
-) -> tuple[str, str] | None:
-    """Check that `meta` has the scenario, dt and horizons the checkpoint's run was trained on
-    (`MATCHED_DATA`); returns None, or with `allow_scenario_mismatch` the (trained, evaluated)
-    scenario names where only the scenario differs.
-
-    Another scenario is evaluated only when asked and when dt, the horizons and the agent count
-    (`num_agents` of the evaluated file, checked where the run recorded its own) match:
-    otherwise ScenarioMismatchError (a scenario alone differs, not asked) or EvaluationError.
-    """
-    trained = checkpoint.get("data")
-    if not isinstance(trained, dict) or any(key not in trained for key in MATCHED_DATA):
-        raise CheckpointError(f"{checkpoint_path}: inconsistent checkpoint (no data description)")
-    now_values = {key: getattr(meta, key) for key in MATCHED_DATA}
-    differ = [key for key in MATCHED_DATA if not _same(trained[key], now_values[key])]
-    if differ == ["scenario"] and num_agents is not None and "num_agents" in trained:
-        # the model reads any number of agents of its own scenario, not of another's
-        now_values["num_agents"] = num_agents
-        differ += [] if trained["num_agents"] == num_agents else ["num_agents"]
-    if not differ:
-        return None
-    was = ", ".join(f"{key} {trained[key]!r}" for key in differ)
-    now = ", ".join(f"{key} {now_values[key]!r}" for key in differ)
-    message = f"{checkpoint_path} was trained on data with {was}, but {data_path} has {now}"
-    if differ != ["scenario"]:
-        raise EvaluationError(message)
-    if not allow_scenario_mismatch:
-        raise ScenarioMismatchError(message, str(trained["scenario"]), meta.scenario)
-    return str(trained["scenario"]), meta.scenario
-
-
-def _same(a: object, b: object) -> bool:
-    if isinstance(a, float) or isinstance(b, float):
-        return math.isclose(float(a), float(b), rel_tol=1e-9)
-    return a == b
 
 
 def _load_split(data_path: str | os.PathLike, split: str) -> TrajectoryDataset:

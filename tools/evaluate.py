@@ -50,8 +50,8 @@ from pipeline.cli import (
     writing,
 )
 from predictor.baselines import BASELINES
-from predictor.checkpoints import CHECKPOINTS, CheckpointError
-from predictor.evaluation import Evaluation, ScenarioMismatchError, evaluate_baseline, evaluate_run
+from predictor.checkpoints import CHECKPOINTS, CheckpointError, ScenarioMismatchError
+from predictor.evaluation import Evaluation, evaluate_baseline, evaluate_run
 from predictor.forecasting import SAMPLE_METHODS, EvaluationError, SampleSettings
 from predictor.wording import Wording
 from trajectory_data.format import FormatError
