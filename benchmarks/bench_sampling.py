@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
 import tempfile
-import time
 from pathlib import Path
 
 import torch
+from bench_evaluate import median_seconds  # a script beside this one
 
 from pipeline.generation import GenerateConfig, generate_dataset
 from predictor.config import resolve_roles
@@ -28,15 +27,6 @@ from predictor.model import SmoothAttentionPredictor
 from predictor.predictions import Predictions
 from predictor.presets import make_configs
 from trajectory_data.torch_dataset import TrajectoryDataset
-
-
-def median_seconds(function, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def main() -> None:
