@@ -22,8 +22,11 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from carlo_lite.collision import CollisionChecker
-from carlo_lite.kinematics import CarLimits, bicycle_step, wrap_angle
+from carlo_lite.kinematics import CarLimits, bicycle_step, box_corners, wrap_angle
+from carlo_lite.layouts import RoadLayout
 from carlo_lite.road import StraightRoad
+
+Road = StraightRoad | RoadLayout  # what cars can drive on
 
 DEFAULT_LENGTH_M = 4.5
 DEFAULT_WIDTH_M = 1.8
@@ -42,7 +45,9 @@ class BatchedWorld:
     """B scenes of the same N car bodies on one road, stepped together.
 
     Arguments:
-        road: the road every scene drives on (its edges define off-road).
+        road: the road every scene drives on: a `StraightRoad` (its edges define off-road) or
+            any `RoadLayout` (an intersection, a roundabout: a car is off-road when a corner
+            of its body lies on no lane).
         state: initial states (B, N, 4) = [x m, y m, heading rad, speed m/s]; headings are
             wrapped to [-pi, pi) and speeds clipped to [0, limits.max_speed_mps].
         length_m, width_m, wheelbase_m: body sizes [m], a scalar or one per car (N,), the same
@@ -58,7 +63,7 @@ class BatchedWorld:
 
     def __init__(
         self,
-        road: StraightRoad,
+        road: Road,
         state: np.ndarray,
         *,
         length_m: float | Sequence[float] = DEFAULT_LENGTH_M,
@@ -87,7 +92,10 @@ class BatchedWorld:
         self._flat_wheelbase = np.tile(self.wheelbase_m, num_scenes)  # (B*N,)
         self._flat_length = np.tile(self.length_m, num_scenes)
         self._flat_width = np.tile(self.width_m, num_scenes)
-        self._checker = CollisionChecker(self.length_m, self.width_m, road.edge_segments())
+        if not isinstance(road, (StraightRoad, RoadLayout)):
+            raise TypeError(f"road must be a StraightRoad or a RoadLayout, got {type(road)}")
+        edges = road.edge_segments() if isinstance(road, StraightRoad) else ()
+        self._checker = CollisionChecker(self.length_m, self.width_m, edges)
         self._upper = np.triu(np.ones((num_cars, num_cars), dtype=bool), k=1)  # pairs i < j
         state = state.reshape(num_scenes * num_cars, 4)
         self._xy = state[:, :2].copy()  # (B*N, 2)
@@ -340,6 +348,8 @@ class BatchedWorld:
         return hit
 
     def _off_road(self, low: tuple, high: tuple) -> np.ndarray:
+        if isinstance(self.road, RoadLayout):
+            return self._off_layout()
         d_min, d_max = self.road.lateral_bounds
         num_cars = self.num_cars
         (_, low_y), (_, high_y) = low, high  # (N, B) each
@@ -361,6 +371,12 @@ class BatchedWorld:
             )
             off[scene] = (touching | (self.road.lane_index(xy) < 0)) & active
         return off
+
+    def _off_layout(self) -> np.ndarray:
+        """(B, N) bool: some corner of the active car's body lies on no lane of the layout."""
+        corners = box_corners(self._xy, self._heading, self._flat_length, self._flat_width)
+        off = ~self.road.on_road(corners).all(axis=1)  # (B*N,)
+        return off.reshape(self._shape) & self._active
 
 
 def _scene_boxes(scene: int, low: tuple, high: tuple) -> tuple[np.ndarray, np.ndarray]:

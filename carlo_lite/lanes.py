@@ -203,6 +203,17 @@ class Lane:
             heading[mask] = h
         return xy, heading
 
+    def curvature_at(self, s: np.ndarray | float) -> np.ndarray:
+        """Signed curvature [1/m] of the centre-line at arc lengths `s`: +1/radius on a left arc,
+        -1/radius on a right arc, 0 on segments and beyond the ends."""
+        s = np.asarray(s, dtype=float)
+        index, local = self._locate(s)
+        signed = np.array(
+            [0.0 if isinstance(p, Segment) else p._sign / p.radius_m for p in self.pieces]
+        )
+        inside = (local >= 0.0) & (local <= self.length_m) & (s >= 0.0) & (s <= self.length_m)
+        return np.where(inside, signed[index], 0.0)
+
     def heading_at(self, s: np.ndarray | float) -> np.ndarray:
         """Lane direction [rad] at arc lengths `s`; continuous along each arc, not wrapped to
         (-pi, pi] (compare headings modulo 2 pi)."""

@@ -47,11 +47,22 @@ class View:
 
 
 def default_view(world: World, width_px: int, height_px: int) -> View:
-    """Fit the road's width (plus a margin) in the frame height, centred on the active cars."""
+    """Straight road: fit its width (plus a margin) in the frame height, centred on the active
+    cars. Road layout: fit the whole layout in the frame."""
+    if isinstance(world.road, RoadLayout):
+        return layout_view(world.road, width_px, height_px)
     metres_per_px = (world.road.width_m + 6.0) / height_px
     active_x = world.xy[world.active, 0]
     center_x = float(active_x.mean()) if len(active_x) else world.road.length_m / 2
     return View((center_x, world.road.width_m / 2), metres_per_px, width_px, height_px)
+
+
+def layout_view(layout: RoadLayout, width_px: int, height_px: int) -> View:
+    """The view that fits all of `layout` (plus 2 m) in the frame."""
+    x_min, y_min, x_max, y_max = layout.bounds(margin_m=2.0)
+    metres_per_px = max((x_max - x_min) / width_px, (y_max - y_min) / height_px)
+    center = ((x_min + x_max) / 2, (y_min + y_max) / 2)
+    return View(center, metres_per_px, width_px, height_px)
 
 
 def _fill_band(
@@ -65,6 +76,9 @@ def _fill_band(
 
 
 def _draw_road(frame: np.ndarray, world: World, view: View) -> None:
+    if isinstance(world.road, RoadLayout):
+        _draw_layout(frame, world.road, view)
+        return
     xs, ys = view.pixel_centres()
     road = world.road
     on_road_x = (xs >= 0) & (xs <= road.length_m)
@@ -75,6 +89,18 @@ def _draw_road(frame: np.ndarray, world: World, view: View) -> None:
     dashes = on_road_x & (np.mod(xs, 9.0) < 3.0)  # 3 m dashes every 9 m
     for marking_y in road.marking_lines_y():
         _fill_band(frame, ys, marking_y - line_half, marking_y + line_half, MARKING_COLOR, dashes)
+
+
+def _draw_layout(frame: np.ndarray, layout: RoadLayout, view: View) -> None:
+    """Road pixels are those whose centre lies on some lane; road pixels next to an off-road
+    pixel are the edge line."""
+    xs, ys = view.pixel_centres()
+    grid = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None]), axis=-1)  # (H, W, 2)
+    road = layout.on_road(grid)
+    padded = np.pad(road, 1, mode="edge")
+    edge = road & ~(padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2] & padded[1:-1, 2:])
+    frame[road] = ROAD_COLOR
+    frame[edge] = MARKING_COLOR
 
 
 def _draw_box(frame, view, xs, ys, center, heading, length, width, color) -> None:
@@ -147,21 +173,16 @@ def render_layout(
     """
     if width_px < 1 or height_px < 1:
         raise ValueError("frame size must be at least 1 x 1 pixel")
-    x_min, y_min, x_max, y_max = layout.bounds(margin_m=2.0)
-    if metres_per_px is None:
-        metres_per_px = max((x_max - x_min) / width_px, (y_max - y_min) / height_px)
-    if center_xy is None:
-        center_xy = ((x_min + x_max) / 2, (y_min + y_max) / 2)
-    view = View(center_xy, metres_per_px, width_px, height_px)
-    xs, ys = view.pixel_centres()
-    grid = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None]), axis=-1)  # (H, W, 2)
-    road = layout.on_road(grid)
-    padded = np.pad(road, 1, mode="edge")
-    edge = road & ~(padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2] & padded[1:-1, 2:])
+    fitted = layout_view(layout, width_px, height_px)
+    view = View(
+        center_xy if center_xy is not None else fitted.center_xy,
+        metres_per_px if metres_per_px is not None else fitted.metres_per_px,
+        width_px,
+        height_px,
+    )
     frame = np.empty((height_px, width_px, 3), dtype=np.uint8)
     frame[:] = GRASS_COLOR
-    frame[road] = ROAD_COLOR
-    frame[edge] = MARKING_COLOR
+    _draw_layout(frame, layout, view)
     if world is not None:
         _draw_cars(frame, world, view)
     return frame

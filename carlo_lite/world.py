@@ -16,9 +16,9 @@ from carlo_lite.batched import (
     DEFAULT_WHEELBASE_M,
     DEFAULT_WIDTH_M,
     BatchedWorld,
+    Road,
 )
 from carlo_lite.kinematics import CarLimits, box_corners
-from carlo_lite.road import StraightRoad
 
 
 class World:
@@ -42,7 +42,7 @@ class World:
 
     def __init__(
         self,
-        road: StraightRoad,
+        road: Road,
         xy: np.ndarray,
         heading: np.ndarray,
         speed: np.ndarray,
@@ -84,7 +84,7 @@ class World:
 
     # --- what the scene is made of ----------------------------------------------------------
     @property
-    def road(self) -> StraightRoad:
+    def road(self) -> Road:
         return self.batch.road
 
     @property

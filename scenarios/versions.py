@@ -13,6 +13,7 @@ from scenarios.double_merge import DoubleMerge
 from scenarios.double_merge_reactive import ReactiveDoubleMerge
 from scenarios.halting_car import HaltingCar
 from scenarios.halting_car_reactive import ReactiveHaltingCar
+from scenarios.left_turn import LeftTurn
 from scenarios.versioning import Version, family_versions
 
 DOUBLE_MERGE = family_versions(
@@ -70,4 +71,16 @@ HALTING_CAR = family_versions(
     ),
 )
 
-FAMILY_VERSIONS = (DOUBLE_MERGE, HALTING_CAR)
+LEFT_TURN = family_versions(
+    "left_turn",
+    "Unprotected Left Turn",
+    Version(
+        code=LeftTurn,
+        changes="first version: a car turning left at an intersection waits for a gap in a "
+        "stream of 3 oncoming cars; braking distractor columns",
+        why="Attention that has to move: the turning car reads one oncoming car after another "
+        "as each passes, and distractors brake and resume without any causal link.",
+    ),
+)
+
+FAMILY_VERSIONS = (DOUBLE_MERGE, HALTING_CAR, LEFT_TURN)
