@@ -26,10 +26,10 @@ the generation (docs/dataset_format.md). With `influence_window_steps=L >= 1` th
 predicted-time window of L steps (`scenarios.counterfactual.windowed_influence`: the ADE of each
 agent over one window when another is removed from the window's first step) is stored as
 `influence_windows`, for scenes where whom an agent reacts to changes during the episode; it
-costs about W / 2 times `influence` (W windows). With `observation_noise_m=SIGMA > 0` the stored
-positions of the observed steps get Gaussian noise (`scenarios.observation_noise`, seeded per
-trajectory); labels and influence still describe the clean run, and the file's config records
-SIGMA under "observation_noise_m".
+costs W/3 to W/2 times `influence` (W windows; docs/dataset_format.md). With
+`observation_noise_m=SIGMA > 0` the stored positions of the observed steps get Gaussian noise
+(`scenarios.observation_noise`, seeded per trajectory); labels and influence still describe the
+clean run, and the file's config records SIGMA under "observation_noise_m".
 
 Interrupts: while episodes are rolled out, SIGINT and SIGTERM are only recorded and handed to the
 caller's own handler between episodes, or batches of them
