@@ -22,10 +22,14 @@ output of a call without them keeps its bytes: with `influence=True` every traje
 influence matrices (`scenarios.counterfactual`: the ADE of each agent's predicted steps when
 another is removed, for the whole episode and from the first predicted step) are computed from
 the clean run and stored as the optional dataset `influence` (schema 4); they cost about 5 times
-the generation (docs/dataset_format.md). With `observation_noise_m=SIGMA > 0` the stored
-positions of the observed steps get Gaussian noise (`scenarios.observation_noise`, seeded per
-trajectory); labels and influence still describe the clean run, and the file's config records
-SIGMA under "observation_noise_m".
+the generation (docs/dataset_format.md). With `influence_window_steps=L >= 1` the same per
+predicted-time window of L steps (`scenarios.counterfactual.windowed_influence`: the ADE of each
+agent over one window when another is removed from the window's first step) is stored as
+`influence_windows`, for scenes where whom an agent reacts to changes during the episode; it
+costs W/3 to W/2 times `influence` (W windows; docs/dataset_format.md). With
+`observation_noise_m=SIGMA > 0` the stored positions of the observed steps get Gaussian noise
+(`scenarios.observation_noise`, seeded per trajectory); labels and influence still describe the
+clean run, and the file's config records SIGMA under "observation_noise_m".
 
 Interrupts: while episodes are rolled out, SIGINT and SIGTERM are only recorded and handed to the
 caller's own handler between episodes, or batches of them
@@ -70,11 +74,17 @@ from pipeline.dataset_plan import (  # noqa: F401 (the generator's public names,
 from pipeline.episode_runner import DEFAULT_BATCH_SCENES, Slot
 from pipeline.sharded_generation import generate_sharded
 from scenarios import VERSIONS, Scenario
-from scenarios.counterfactual import INFLUENCE_KINDS, influence_matrices
+from scenarios.counterfactual import INFLUENCE_KINDS, influence_matrices, windowed_influence
 from scenarios.observation_noise import add_observation_noise, check_noise
 from scenarios.rollout import Episode
 from trajectory_data import format as data_format
-from trajectory_data.format import INFLUENCE, DatasetMeta, TrajectorySet, write_dataset
+from trajectory_data.format import (
+    INFLUENCE,
+    INFLUENCE_WINDOWS,
+    DatasetMeta,
+    TrajectorySet,
+    write_dataset,
+)
 
 assert INFLUENCE_KINDS == data_format.INFLUENCE_KINDS  # the scenarios' order is the format's
 
@@ -145,9 +155,11 @@ def _build_splits(
     scenario: Scenario,
     influence: np.ndarray | None = None,
     observation_noise_m: float = 0.0,
+    influence_windows: np.ndarray | None = None,
 ) -> dict[str, TrajectorySet]:
-    """The splits' sets, with `influence` (one (2, N, N) per slot) attached and the observed
-    positions blurred by `observation_noise_m` where given."""
+    """The splits' sets, with `influence` (one (2, N, N) per slot) and `influence_windows` (one
+    (W, N, N) per slot) attached and the observed positions blurred by `observation_noise_m`
+    where given."""
     splits = {}
     case_names = tuple(scenario.case_names)
     for split in SPLIT_ORDER:
@@ -168,6 +180,8 @@ def _build_splits(
             data = dataclasses.replace(data, states=states)
         if influence is not None:
             data = dataclasses.replace(data, influence=influence[rows])
+        if influence_windows is not None:
+            data = dataclasses.replace(data, influence_windows=influence_windows[rows])
         splits[split] = data
     return splits
 
@@ -186,10 +200,40 @@ def slot_influence(
     return np.concatenate(parts)
 
 
-def with_options(meta: DatasetMeta, influence: bool, observation_noise_m: float) -> DatasetMeta:
-    """`meta` recording influence and the observation noise where asked (unchanged if not)."""
+def slot_windowed_influence(
+    scenario: Scenario,
+    slots: list[Slot],
+    window_steps: int,
+    batch_scenes: int = DEFAULT_BATCH_SCENES,
+) -> np.ndarray:
+    """(len(slots), W, N, N) float32 influence per time window of `window_steps` steps of the
+    slots' episodes (`scenarios.counterfactual.windowed_influence`); about 2 batch_scenes / W
+    scenes at a time, so that a call steps about as many worlds as `slot_influence`'s."""
+    check_int("batch_scenes", batch_scenes, 1)
+    parts = [windowed_influence(scenario, [], window_steps)]
+    scenes = max(1, 2 * batch_scenes // parts[0].shape[1])
+    for start in range(0, len(slots), scenes):
+        batch = [scenario.plan(s.seed, s.case) for s in slots[start : start + scenes]]
+        parts.append(windowed_influence(scenario, batch, window_steps))
+    return np.concatenate(parts)
+
+
+def with_options(
+    meta: DatasetMeta,
+    influence: bool,
+    observation_noise_m: float,
+    influence_window_steps: int = 0,
+) -> DatasetMeta:
+    """`meta` recording influence (per window of `influence_window_steps` steps where >= 1)
+    and the observation noise where asked (unchanged if not)."""
     if influence:
         meta = dataclasses.replace(meta, recorded=(*meta.recorded, INFLUENCE))
+    if influence_window_steps:
+        meta = dataclasses.replace(
+            meta,
+            recorded=(*meta.recorded, INFLUENCE_WINDOWS),
+            influence_window_steps=influence_window_steps,
+        )
     if observation_noise_m > 0:
         meta = dataclasses.replace(
             meta, config={**meta.config, "observation_noise_m": observation_noise_m}
@@ -224,6 +268,7 @@ def generate_dataset(
     shard_size: int | None = None,
     influence: bool = False,
     observation_noise_m: float = 0.0,
+    influence_window_steps: int = 0,
 ) -> GenerationResult:
     """Roll out `config`'s trajectories, check them, and write the dataset to `out` atomically.
 
@@ -248,11 +293,14 @@ def generate_dataset(
     `influence` (default False): also compute and store every trajectory's influence matrices
     (see the module; single files only, ValueError with `shard_size`). `observation_noise_m`
     (default 0, >= 0): Gaussian noise [m] on the observed positions (see the module).
+    `influence_window_steps` (default 0: none; else >= 1): also compute and store the influence
+    per predicted-time window of that many steps (see the module; single files only).
     """
     out = Path(out)
     observation_noise_m = check_noise(observation_noise_m)
     if not isinstance(influence, bool):
         raise ValueError(f"influence must be True or False, got {influence!r}")
+    check_int("influence_window_steps", influence_window_steps, 0)
     if workers < 1:
         raise ValueError(f"workers must be at least 1, got {workers}")
     check_int("batch_scenes", batch_scenes, 1)
@@ -260,7 +308,7 @@ def generate_dataset(
         check_int("shard_size", shard_size, 1)
         if out.suffix in (".h5", ".hdf5"):
             raise ValueError(f"with shard_size, out names a folder (no .h5 suffix), got {out}")
-        if influence:
+        if influence or influence_window_steps:
             raise ValueError("influence is written to single files only, not with shard_size")
         return generate_sharded(
             config,
@@ -287,13 +335,22 @@ def generate_dataset(
     if progress:  # stacking and writing a large set takes seconds: say what is going on
         print(f"writing {len(episodes):,} trajectories to {out} ...", file=sys.stderr, flush=True)
     scenario = VERSIONS[config.scenario].make()
-    matrices = None
+    matrices = windows = None
     if influence:
         if progress:
             print("computing influence matrices ...", file=sys.stderr, flush=True)
         matrices = slot_influence(scenario, slots, batch_scenes)
-    splits = _build_splits(slots, episodes, scenario, matrices, observation_noise_m)
-    meta = with_options(dataset_meta(config, scenario, rejected), influence, observation_noise_m)
+    if influence_window_steps:
+        if progress:
+            print("computing influence per time window ...", file=sys.stderr, flush=True)
+        windows = slot_windowed_influence(scenario, slots, influence_window_steps, batch_scenes)
+    splits = _build_splits(slots, episodes, scenario, matrices, observation_noise_m, windows)
+    meta = with_options(
+        dataset_meta(config, scenario, rejected),
+        influence,
+        observation_noise_m,
+        influence_window_steps,
+    )
     write_dataset(out, meta, splits, overwrite=overwrite)
     counts = {
         split: {name: int((data.case == i).sum()) for i, name in enumerate(meta.case_names)}

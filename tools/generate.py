@@ -18,9 +18,12 @@ so a dataset larger than memory can be generated.
 
 `--influence` also stores every trajectory's counterfactual influence matrices (how far each
 agent's predicted steps move when another agent is removed; schema 4, single files only; about
-5 times the generation's time). `--observation-noise-m SIGMA` adds Gaussian noise of SIGMA metres
-to the stored positions of the observed steps (labels and influence stay those of the clean
-run). Both are off by default, so a plain run writes the same bytes as before.
+5 times the generation's time); `--influence-window-steps L` stores the same per predicted-time
+window of L steps (the agent removed from each window's first step, the ADE over that window;
+for scenes where whom an agent reacts to changes during the episode). `--observation-noise-m
+SIGMA` adds Gaussian noise of SIGMA metres to the stored positions of the observed steps (labels
+and influence stay those of the clean run). All are off by default, so a plain run writes the
+same bytes as before.
 """
 
 from __future__ import annotations
@@ -144,6 +147,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "agent's predicted ADE when another is removed; single files only, ~5x the time)",
     )
     parser.add_argument(
+        "--influence-window-steps",
+        type=int,
+        default=0,
+        metavar="L",
+        help="also store the influence per predicted-time window of L >= 1 steps (each agent's "
+        "ADE over a window when another is removed from its first step; single files only; "
+        "default 0: none)",
+    )
+    parser.add_argument(
         "--observation-noise-m",
         type=float,
         default=0.0,
@@ -202,8 +214,12 @@ def main(argv: list[str] | None = None) -> None:
     out = Path(args.out) if args.out is not None else default_output(config, sharded)
     if sharded and out.suffix in (".h5", ".hdf5"):
         fail(f"with --shard-size, --out names a folder (its index is FOLDER/index.h5), got {out}")
-    if sharded and args.influence:
-        fail("--influence is written to single files only, not with --shard-size")
+    window = args.influence_window_steps
+    if window < 0:
+        fail(f"--influence-window-steps must be at least 1 (0: none), got {window}")
+    if sharded and (args.influence or window):
+        flag = "--influence" if args.influence else "--influence-window-steps"
+        fail(f"{flag} is written to single files only, not with --shard-size")
     try:
         check_noise(args.observation_noise_m)
     except ValueError as error:
@@ -220,6 +236,7 @@ def main(argv: list[str] | None = None) -> None:
             shard_size=args.shard_size,
             progress=not args.no_progress,
             influence=args.influence,
+            influence_window_steps=window,
             observation_noise_m=args.observation_noise_m,
         )
     except KeyboardInterrupt:

@@ -19,11 +19,14 @@ same arrays whatever the source recorded. Code that needs real labels or states 
 A schema-1 file reads as schema 2 with everything recorded and the first two agent slots focal
 (`legacy_focal`), which is what the metrics of schema 1 scored.
 
-Schema 4 is schema 2 plus the optional per-split dataset `influence` (counterfactual ground
-truth, `INFLUENCE_KINDS`), listed in `recorded` where a file holds it. A writer writes the lowest
-schema that describes the file (`written_schema`): 2 without influence, so such files keep their
-bytes and older readers read them, 4 with it, which older readers refuse by its number instead
-of misreading. In memory an absent influence is None, never filled.
+Schema 4 is schema 2 plus the optional per-split datasets `influence` (counterfactual ground
+truth, `INFLUENCE_KINDS`) and `influence_windows` (the same per predicted-time window of
+`DatasetMeta.influence_window_steps` steps, the root attribute of that name), listed in
+`recorded` where a file holds them. A writer writes the lowest schema that describes the file
+(`written_schema`): 2 without either, so such files keep their bytes and older readers read
+them, 4 with one, which older readers refuse by its number (or, schema-4 readers that predate
+`influence_windows`, by the unknown name in `recorded`) instead of misreading. In memory an
+absent one is None, never filled.
 
 Schema 3 is the index of a sharded dataset (written by `trajectory_data.shards`): a schema-2
 file whose split datasets are HDF5 virtual datasets over shard files beside it, listed in the root
@@ -89,7 +92,15 @@ OPTIONAL_FIELDS = tuple(NEUTRAL_VALUES)
 INFLUENCE = "influence"
 INFLUENCE_KINDS = ("episode", "predicted")
 INFLUENCE_FIELD = (np.dtype(np.float32), ("n", len(INFLUENCE_KINDS), "N", "N"))
-RECORDABLE = (*OPTIONAL_FIELDS, INFLUENCE)  # what `recorded` may list
+# Per predicted-time window (schema 4), per split: influence_windows[k, w, i, j] [m], the ADE of
+# agent i over the steps of window w when agent j is removed from the window's first step on;
+# window w holds the steps num_observed + w L .. num_observed + (w + 1) L - 1 (the last one cut
+# at T), L = DatasetMeta.influence_window_steps, W = ceil(num_predicted / L) windows.
+INFLUENCE_WINDOWS = "influence_windows"
+INFLUENCE_WINDOWS_FIELD = (np.dtype(np.float32), ("n", "W", "N", "N"))
+INFLUENCE_WINDOW_ATTR = "influence_window_steps"  # root attribute, only in files that hold them
+MATRIX_FIELDS = (INFLUENCE, INFLUENCE_WINDOWS)  # (n, K, N, N) per scene, None when absent
+RECORDABLE = (*OPTIONAL_FIELDS, *MATRIX_FIELDS)  # what `recorded` may list
 _AGENT_AXIS = {"states": 2, "actions": 2, "valid": 2, "focal": 1, "attention": 2, "roles": 1}
 ROOT_ATTRS_V1 = (
     "format",
@@ -141,6 +152,8 @@ class DatasetMeta:
     # optional datasets (RECORDABLE) the file holds; absent OPTIONAL_FIELDS read as
     # NEUTRAL_VALUES, an absent influence as None
     recorded: tuple[str, ...] = OPTIONAL_FIELDS
+    # steps per window of influence_windows (>= 1) where recorded lists it, else 0
+    influence_window_steps: int = 0
 
     def __post_init__(self) -> None:
         for name in ("case_names", "role_names", "state_names", "action_names", "recorded"):
@@ -158,6 +171,14 @@ class DatasetMeta:
     def num_steps(self) -> int:
         """Recorded steps per trajectory, T = num_observed + num_predicted."""
         return self.num_observed + self.num_predicted
+
+    @property
+    def num_influence_windows(self) -> int:
+        """W = ceil(num_predicted / influence_window_steps) windows of influence_windows (0
+        where the file records none)."""
+        if not self.has(INFLUENCE_WINDOWS):
+            return 0
+        return -(-self.num_predicted // self.influence_window_steps)
 
     def validate(self, source: str = "") -> None:
         """Raise FormatError if a field is out of its documented range."""
@@ -215,18 +236,29 @@ class DatasetMeta:
             raise format_error(
                 source, f"recorded names unknown datasets {unknown}; optional are {RECORDABLE}"
             )
-        if self.has(INFLUENCE) and self.schema_version in (1, 3):
+        for name in MATRIX_FIELDS:
+            if self.has(name) and self.schema_version in (1, 3):
+                raise format_error(
+                    source,
+                    f"{name} needs schema {INFLUENCE_SCHEMA_VERSION}, not schema "
+                    f"{self.schema_version}",
+                )
+        steps = self.influence_window_steps
+        if not isinstance(steps, (int, np.integer)) or isinstance(steps, bool):
+            raise format_error(source, f"{INFLUENCE_WINDOW_ATTR} must be an integer, got {steps!r}")
+        if self.has(INFLUENCE_WINDOWS) != (steps >= 1) or steps < 0:
             raise format_error(
                 source,
-                f"{INFLUENCE} needs schema {INFLUENCE_SCHEMA_VERSION}, not schema "
-                f"{self.schema_version}",
+                f"{INFLUENCE_WINDOW_ATTR} must be >= 1 where recorded lists "
+                f"{INFLUENCE_WINDOWS}, else 0; got {steps}",
             )
 
 
 def written_schema(meta: DatasetMeta) -> int:
     """The schema a file of `meta` is written as: INFLUENCE_SCHEMA_VERSION if it records
-    influence, else SCHEMA_VERSION (so files without influence keep their bytes)."""
-    return INFLUENCE_SCHEMA_VERSION if meta.has(INFLUENCE) else SCHEMA_VERSION
+    influence (either MATRIX_FIELDS), else SCHEMA_VERSION (so files without keep their bytes)."""
+    recorded = any(meta.has(name) for name in MATRIX_FIELDS)
+    return INFLUENCE_SCHEMA_VERSION if recorded else SCHEMA_VERSION
 
 
 def versions_text() -> str:
@@ -258,6 +290,7 @@ class TrajectorySet:
     roles: np.ndarray  # (n, N) int8: index into role_names
     focal: np.ndarray | None = None  # (n, N) bool: agents scored and selecting checkpoints
     influence: np.ndarray | None = None  # (n, 2, N, N) float32 [m] (schema 4), None: absent
+    influence_windows: np.ndarray | None = None  # (n, W, N, N) float32 [m] (schema 4), None: absent
 
     def __post_init__(self) -> None:
         if self.focal is None and isinstance(self.states, np.ndarray) and self.states.ndim >= 3:
@@ -297,7 +330,7 @@ class TrajectorySet:
             raise format_error(source, f"states need at least the channels {list(REQUIRED_STATES)}")
         if meta is not None:
             self._check_meta(meta, source)
-        self._check_influence(source)
+        self._check_influence(source, None if meta is None else meta.num_influence_windows)
         if n == 0:
             return
         if not np.isfinite(self.states[self.valid]).all():
@@ -322,22 +355,31 @@ class TrajectorySet:
                     source, f"{name} index {int(values.max())} out of range for {limit} names"
                 )
 
-    def _check_influence(self, source: str) -> None:
-        influence = self.influence
-        if influence is None:
-            return
-        dtype, _ = INFLUENCE_FIELD
-        expected = (self.n, len(INFLUENCE_KINDS), self.num_agents, self.num_agents)
-        if not isinstance(influence, np.ndarray) or influence.dtype != dtype:
-            raise format_error(source, f"{INFLUENCE} must be a {dtype} array")
-        if influence.shape != expected:
-            raise format_error(
-                source,
-                f"{INFLUENCE} has shape {influence.shape}, expected {expected} (n, kinds "
-                f"{list(INFLUENCE_KINDS)}, N, N)",
-            )
-        if (influence < 0).any() or np.isinf(influence).any():
-            raise format_error(source, f"{INFLUENCE} must be NaN or finite and non-negative [m]")
+    def matrices(self) -> dict[str, np.ndarray]:
+        """The MATRIX_FIELDS the set holds (influence, influence_windows), by name."""
+        return {
+            name: getattr(self, name) for name in MATRIX_FIELDS if getattr(self, name) is not None
+        }
+
+    def _check_influence(self, source: str, num_windows: int | None = None) -> None:
+        """Dtype, shape and values of the MATRIX_FIELDS held; `num_windows` (W, from the
+        metadata) where known."""
+        for name, matrix in self.matrices().items():
+            if name == INFLUENCE:
+                kinds, axis_text = len(INFLUENCE_KINDS), f"kinds {list(INFLUENCE_KINDS)}"
+            else:
+                kinds, axis_text = num_windows, "windows W"
+            if not isinstance(matrix, np.ndarray) or matrix.dtype != np.float32:
+                raise format_error(source, f"{name} must be a float32 array")
+            kinds = matrix.shape[1] if kinds is None and matrix.ndim == 4 else kinds
+            expected = (self.n, kinds, self.num_agents, self.num_agents)
+            if matrix.shape != expected:
+                raise format_error(
+                    source,
+                    f"{name} has shape {matrix.shape}, expected {expected} (n, {axis_text}, N, N)",
+                )
+            if (matrix < 0).any() or np.isinf(matrix).any():
+                raise format_error(source, f"{name} must be NaN or finite and non-negative [m]")
 
     def _check_meta(self, meta: DatasetMeta, source: str) -> None:
         if self.num_steps != meta.num_steps:
@@ -353,13 +395,14 @@ class TrajectorySet:
                     f"{name} has {getattr(self, name).shape[3]} channels but "
                     f"{name[:-1]}_names lists {len(names)}",
                 )
-        if meta.has(INFLUENCE) != (self.influence is not None):
-            state = "lists" if meta.has(INFLUENCE) else "does not list"
-            raise format_error(
-                source,
-                f"the metadata {state} {INFLUENCE} as recorded but the split "
-                f"{'lacks it' if meta.has(INFLUENCE) else 'holds it'}",
-            )
+        for name in MATRIX_FIELDS:
+            if meta.has(name) != (getattr(self, name) is not None):
+                state = "lists" if meta.has(name) else "does not list"
+                raise format_error(
+                    source,
+                    f"the metadata {state} {name} as recorded but the split "
+                    f"{'lacks it' if meta.has(name) else 'holds it'}",
+                )
         for name, neutral in NEUTRAL_VALUES.items():
             if not meta.has(name) and (getattr(self, name) != neutral).any():
                 raise format_error(
@@ -402,9 +445,9 @@ class TrajectorySet:
             indices = np.asarray(indices)
             if indices.dtype != np.bool_:
                 indices = indices.astype(np.int64).reshape(-1)
-        influence = None if self.influence is None else np.array(self.influence[indices])
         return TrajectorySet(
-            **{k: np.array(v[indices]) for k, v in self.arrays().items()}, influence=influence
+            **{k: np.array(v[indices]) for k, v in self.arrays().items()},
+            **{k: np.array(v[indices]) for k, v in self.matrices().items()},
         )
 
     def select_case(self, case_index: int) -> TrajectorySet:
@@ -426,11 +469,13 @@ class TrajectorySet:
         agents = max(s.num_agents for s in sets)
         padded = [s.pad_agents(agents) for s in sets]
         arrays = [p.arrays() for p in padded]
-        influence = None  # kept only where every set has it
-        if all(p.influence is not None for p in padded):
-            influence = np.concatenate([p.influence for p in padded])
+        matrices = {}  # kept only where every set has one, of one shape
+        for name in MATRIX_FIELDS:
+            held = [getattr(p, name) for p in padded]
+            if all(m is not None for m in held) and len({m.shape[1:] for m in held}) == 1:
+                matrices[name] = np.concatenate(held)
         return TrajectorySet(
-            **{k: np.concatenate([a[k] for a in arrays]) for k in FIELDS}, influence=influence
+            **{k: np.concatenate([a[k] for a in arrays]) for k in FIELDS}, **matrices
         )
 
     def pad_agents(self, num_agents: int) -> TrajectorySet:
@@ -451,11 +496,11 @@ class TrajectorySet:
             widths = [(0, 0)] * array.ndim
             widths[axis] = (0, extra)
             out[name] = np.pad(array, widths, constant_values=fill.get(name, 0))
-        influence = self.influence
-        if influence is not None:  # padded agents are absent: NaN rows and columns
-            widths = [(0, 0), (0, 0), (0, extra), (0, extra)]
-            influence = np.pad(influence, widths, constant_values=np.nan)
-        return TrajectorySet(**out, influence=influence)
+        widths = [(0, 0), (0, 0), (0, extra), (0, extra)]  # absent agents: NaN rows and columns
+        matrices = {
+            k: np.pad(v, widths, constant_values=np.nan) for k, v in self.matrices().items()
+        }
+        return TrajectorySet(**out, **matrices)
 
     @staticmethod
     def empty(
@@ -507,11 +552,15 @@ def write_dataset(
     agents = next(iter(splits.values())).num_agents
     channels = len(meta.state_names), len(meta.action_names)
     empty = TrajectorySet.empty(meta.num_steps, agents, *channels)
-    if meta.has(INFLUENCE):
-        kinds = len(INFLUENCE_KINDS)
-        empty = dataclasses.replace(
-            empty, influence=np.zeros((0, kinds, agents, agents), dtype=np.float32)
-        )
+    sizes = {INFLUENCE: len(INFLUENCE_KINDS), INFLUENCE_WINDOWS: meta.num_influence_windows}
+    empty = dataclasses.replace(
+        empty,
+        **{
+            name: np.zeros((0, size, agents, agents), dtype=np.float32)
+            for name, size in sizes.items()
+            if meta.has(name)
+        },
+    )
     full = {s: splits.get(s, empty) for s in SPLITS}
     for name, data in full.items():
         data.validate(meta, source=f"split {name!r}")
@@ -548,6 +597,8 @@ def _write_root_attrs(file: h5py.File, meta: DatasetMeta) -> None:
     attrs["recorded"] = json.dumps(list(meta.recorded))
     attrs["config"] = json.dumps(meta.config, sort_keys=True, allow_nan=False)
     attrs["package_version"] = meta.package_version
+    if meta.has(INFLUENCE_WINDOWS):  # only here, so that other files keep their bytes
+        attrs[INFLUENCE_WINDOW_ATTR] = np.int64(meta.influence_window_steps)
 
 
 def _write_split(group: h5py.Group, data: TrajectorySet, recorded: tuple[str, ...]) -> None:
@@ -566,15 +617,17 @@ def _write_split(group: h5py.Group, data: TrajectorySet, recorded: tuple[str, ..
             )
         else:
             group.create_dataset(name, data=array)
-    if INFLUENCE in recorded and data.influence is not None:
+    for name, matrix in data.matrices().items():
+        if name not in recorded:
+            continue
         if data.n > 0:
             group.create_dataset(
-                INFLUENCE,
-                data=data.influence,
-                chunks=(1, *data.influence.shape[1:]),
+                name,
+                data=matrix,
+                chunks=(1, *matrix.shape[1:]),
                 compression="gzip",
                 compression_opts=4,
                 shuffle=True,
             )
         else:
-            group.create_dataset(INFLUENCE, data=data.influence)
+            group.create_dataset(name, data=matrix)

@@ -25,6 +25,10 @@ from trajectory_data.format import (
     INFLUENCE,
     INFLUENCE_FIELD,
     INFLUENCE_KINDS,
+    INFLUENCE_WINDOW_ATTR,
+    INFLUENCE_WINDOWS,
+    INFLUENCE_WINDOWS_FIELD,
+    MATRIX_FIELDS,
     NEUTRAL_VALUES,
     OPTIONAL_FIELDS,
     RECORDABLE,
@@ -40,6 +44,7 @@ from trajectory_data.format import (
     legacy_focal,
     versions_text,
 )
+from trajectory_data.window_summary import influence_window_lines
 
 
 class _Reader:
@@ -97,6 +102,11 @@ class _Reader:
             state_names=tuple(self._json(attrs, "state_names", list)),
             action_names=tuple(self._json(attrs, "action_names", list)),
             recorded=recorded,
+            influence_window_steps=(
+                self._number(attrs, INFLUENCE_WINDOW_ATTR, int)
+                if INFLUENCE_WINDOW_ATTR in attrs
+                else 0
+            ),
         )
         meta.validate(self.source)
         return meta
@@ -168,7 +178,7 @@ class _Reader:
             broken = self._broken_shard(name) if self.shards else None
             shard = f"shard {broken}: " if broken else ""
             raise format_error(where, f"{shard}corrupt or truncated data ({_short(err)})") from None
-        influence = arrays.pop(INFLUENCE, None)
+        matrices = {name: arrays.pop(name) for name in MATRIX_FIELDS if name in arrays}
         n, steps, agents = arrays["states"].shape[:3]
         for field_name, neutral in NEUTRAL_VALUES.items():  # absent optional data: neutral
             if field_name not in arrays:
@@ -178,7 +188,7 @@ class _Reader:
                 arrays[field_name] = np.full(full, neutral, dtype=dtype)
         if meta.schema_version == 1:
             arrays["focal"] = legacy_focal(n, agents)
-        data = TrajectorySet(**arrays, influence=influence)
+        data = TrajectorySet(**arrays, **matrices)
         data.validate(meta, source=where)
         if not isinstance(count, (int, np.integer)) or int(count) != data.n:
             shown = count.item() if isinstance(count, np.generic) else count
@@ -195,7 +205,7 @@ class _Reader:
         else:
             extra = [
                 f
-                for f in (*OPTIONAL_FIELDS, INFLUENCE)
+                for f in (*OPTIONAL_FIELDS, *MATRIX_FIELDS)
                 if f not in stored and not meta.has(f) and f in group
             ]
             if extra:
@@ -215,18 +225,23 @@ class _Reader:
             if dataset.ndim != len(FIELDS[field_name][1]):
                 raise format_error(where, f"{field_name} has shape {dataset.shape}")
             datasets[field_name] = dataset
-        if meta.has(INFLUENCE):
-            dataset = group.get(INFLUENCE)
-            dtype, shape = INFLUENCE_FIELD
+        matrix_fields = {
+            INFLUENCE: (INFLUENCE_FIELD, len(INFLUENCE_KINDS)),
+            INFLUENCE_WINDOWS: (INFLUENCE_WINDOWS_FIELD, meta.num_influence_windows),
+        }
+        for name, ((dtype, shape), size) in matrix_fields.items():
+            if not meta.has(name):
+                continue
+            dataset = group.get(name)
             if not isinstance(dataset, h5py.Dataset):
-                raise format_error(where, f"missing dataset {INFLUENCE!r}")
+                raise format_error(where, f"missing dataset {name!r}")
             if dataset.dtype != dtype or dataset.ndim != len(shape):
                 raise format_error(
                     where,
-                    f"{INFLUENCE} is {dataset.dtype} {dataset.shape}, expected {dtype} "
-                    f"(n, {len(INFLUENCE_KINDS)}, N, N)",
+                    f"{name} is {dataset.dtype} {dataset.shape}, expected {dtype} "
+                    f"(n, {size}, N, N)",
                 )
-            datasets[INFLUENCE] = dataset
+            datasets[name] = dataset
         if self.shards is not None:
             datasets = self._mapped(group, datasets, where)
         return {field_name: dataset[()] for field_name, dataset in datasets.items()}
@@ -415,6 +430,8 @@ def summarize(path: str | os.PathLike) -> str:
         )
     if meta.has(INFLUENCE):
         lines += ["", *influence_lines(meta, splits)]
+    if meta.has(INFLUENCE_WINDOWS):
+        lines += ["", *influence_window_lines(meta, splits)]
     return "\n".join(lines)
 
 
