@@ -11,9 +11,15 @@ from agent-centric features of its observed history:
 - optionally one or more other agents (`neighbours`): their position relative to the agent at the
   last observed step and their velocities over the same steps, in the agent's frame, plus a flag
   saying the neighbour is present. `"nearest"` takes the `num_neighbours` closest agents at the
-  last observed step; `"labelled"` takes the agent named by the ground-truth attention label (an
-  oracle: the label is read from the whole scene, future included); `"random"` takes one other
-  agent drawn at random (seeded), the control for `"labelled"`; `"shuffled"` takes the labelled
+  last observed step; `"labelled"` takes the agents named by the ground-truth attention label (an
+  oracle: the label is read from the whole scene, future included): the most attended one, then,
+  where attention moves from car to car during a scene (a turning car reading one oncoming car
+  after another), the others in the order it first attends to them, as many slots as the
+  training data's agents attend to at most (`attended_agents`; one where labels never move);
+  `"random"` takes as many other agents drawn at random (seeded), the control for
+  `"labelled"`; `"unlabelled"` draws them among the agents the agent never attends to (a control
+  without a causal link where several cars matter, such as a stream of oncoming cars whose other
+  members a random draw would pick); `"shuffled"` takes the labelled
   agent's features of another scene (a seeded derangement of the scenes), a null control: the
   same features, with the same distribution, that carry nothing about this scene, so what they
   change is the cost of fitting features that carry nothing.
@@ -48,7 +54,7 @@ if TYPE_CHECKING:  # annotations only: the baselines run on plain numpy arrays
     from trajectory_data.format import DatasetMeta, TrajectorySet
 
 # the baselines' names and each ridge baseline's RidgeConfig fields: predictor.registry
-NEIGHBOUR_MODES = ("none", "nearest", "labelled", "random", "shuffled")
+NEIGHBOUR_MODES = ("none", "nearest", "labelled", "random", "shuffled", "unlabelled")
 # one regression per agent role; or, for the agents that carry an attention label, one per
 # relation to the labelled agent (RELATION_AHEAD / RELATION_BEHIND), whatever their role; or one
 # per role and scene case (an oracle gate: the case is read from the data, as the label is)
@@ -229,6 +235,9 @@ class RidgeBaseline:
     # Cholesky factor (T_pred, T_pred) of constant velocity's errors over the steps, per axis
     # (an isotropic Gaussian), for the agents constant velocity predicts (`sample`)
     fallback_chol: np.ndarray | None = None
+    # neighbour slots of "labelled", "random" and "shuffled": the most distinct agents any agent
+    # of the training data attends to (set by `fit`)
+    label_slots: int = 1
 
     def fit(
         self,
@@ -248,6 +257,7 @@ class RidgeBaseline:
         """
         self._check(states, num_observed)
         self.dt, self.num_observed = float(dt), int(num_observed)
+        self.label_slots = max(1, attended_count(attention).max(initial=0))
         features, usable, frames = self.features(states, valid, attention)
         target = self._target(states[..., :2], valid, frames)  # (n, N, T_pred * 2)
         roles = self.group_keys(states, attention, roles, case)
@@ -383,15 +393,21 @@ class RidgeBaseline:
         if mode == "none":
             return []
         if mode in ("labelled", "shuffled"):
-            return [scene_labels(attention)]
+            return list(attended_agents(attention, self.label_slots))
         num_agents = last.shape[1]
         unusable = ~present[:, None, :] | np.eye(num_agents, dtype=bool)[None]  # (n, N, N)
-        if mode == "random":  # a uniform draw among the other present agents
+        if mode == "unlabelled":
+            unusable = unusable | attended_mask(attention)
+        if mode in ("random", "unlabelled"):  # uniform draws among the usable, without repeats
             draw = np.random.default_rng(self.config.seed).random(unusable.shape)
             score = np.where(unusable, np.inf, draw)
-            index = score.argmin(-1)  # (n, N)
-            found = np.take_along_axis(score, index[..., None], -1)[..., 0] < np.inf
-            return [np.where(found, index, -1)]
+            order = np.argsort(score, axis=-1, kind="stable")  # (n, N, N)
+            slots = []
+            for k in range(min(self.label_slots, num_agents)):
+                index = order[..., k]  # (n, N)
+                found = np.take_along_axis(score, index[..., None], -1)[..., 0] < np.inf
+                slots.append(np.where(found, index, -1))
+            return slots
         distance = np.linalg.norm(last[:, :, None] - last[:, None, :], axis=-1)  # (n, N, N)
         distance = np.where(unusable, np.inf, distance)
         order = np.argsort(distance, axis=-1, kind="stable")  # (n, N, N)
@@ -466,6 +482,52 @@ def scene_derangement(n: int, seed: int) -> np.ndarray:
     order = np.random.default_rng(seed).permutation(n)
     result = np.empty(n, dtype=np.int64)
     result[order] = np.roll(order, -1)
+    return result
+
+
+def attended_mask(attention: np.ndarray) -> np.ndarray:
+    """(n, T, N) labels -> (n, N, N) bool: agent i attends to agent j at some step."""
+    n, _, num_agents = attention.shape
+    seen = np.zeros((n, num_agents, num_agents + 1), dtype=bool)
+    labels = np.where(attention >= 0, attention, num_agents)
+    scenes = np.arange(n)[:, None, None]
+    agents = np.arange(num_agents)[None, None, :]
+    seen[np.broadcast_to(scenes, labels.shape), np.broadcast_to(agents, labels.shape), labels] = (
+        True
+    )
+    return seen[..., :num_agents]
+
+
+def attended_count(attention: np.ndarray) -> np.ndarray:
+    """(n, T, N) labels -> (n, N): how many distinct agents each agent attends to."""
+    return attended_mask(attention).sum(axis=-1)
+
+
+def attended_agents(attention: np.ndarray, slots: int) -> np.ndarray:
+    """(n, T, N) labels -> (slots, n, N): slot 0 each agent's most attended agent
+    (`scene_labels`), the next slots the other agents it attends to in the order it first does
+    (-1 where there are fewer)."""
+    first = scene_labels(attention)
+    result = np.full((slots, *first.shape), -1, dtype=first.dtype)
+    result[0] = first
+    if slots == 1:
+        return result
+    n, num_steps, num_agents = attention.shape
+    # step at which each agent first attends to each other agent (num_steps: never)
+    onset = np.full((n, num_agents, num_agents + 1), num_steps, dtype=np.int64)
+    labels = np.where(attention >= 0, attention, num_agents)
+    steps = np.broadcast_to(np.arange(num_steps)[None, :, None], labels.shape)
+    scenes = np.broadcast_to(np.arange(n)[:, None, None], labels.shape)
+    agents = np.broadcast_to(np.arange(num_agents)[None, None, :], labels.shape)
+    np.minimum.at(onset, (scenes, agents, labels), steps)
+    onset = onset[..., :num_agents]  # (n, N, N)
+    rows, cols = np.nonzero(first >= 0)
+    onset[rows, cols, first[rows, cols]] = num_steps  # the most attended one is slot 0
+    order = np.argsort(onset, axis=-1, kind="stable")  # (n, N, N)
+    for k in range(1, slots):
+        index = order[..., k - 1]
+        attended = np.take_along_axis(onset, index[..., None], -1)[..., 0] < num_steps
+        result[k] = np.where(attended, index, -1)
     return result
 
 

@@ -6,9 +6,10 @@ something of the attending car's future. This module measures it with the ridge 
 of its scene), the test ADE of ridge regressions fitted on the training split with
 
 - `own`: the agent's own history only,
-- `labelled`: plus the history of the agent its label names (oracle),
-- `random`: plus the history of a random other agent (the control; with `control="shuffled"`
-  the labelled agent's history from another scene, a null control that carries nothing about
+- `labelled`: plus the history of the agent its label names (oracle; where the label moves from
+  car to car during a scene, of every agent it names, `predictor.baselines.attended_agents`),
+- `random`: plus the history of as many random other agents (the control; with
+  `control="unlabelled"` random agents it never attends to, with `control="shuffled"` the labelled agent's history from another scene, a null control that carries nothing about
   the scene: it measures what fitting such features costs at the file's size),
 
 per case and role. `gain` = 1 - labelled / own (how much the attended car explains); `control`
@@ -44,7 +45,8 @@ from predictor.metrics import prediction_mask
 from trajectory_data.reader import read_meta, read_split
 
 MODES = ("none", "labelled", "random")  # RidgeConfig.neighbours of own, labelled, random
-CONTROLS = ("random", "shuffled")  # RidgeConfig.neighbours of the control (GainRow.random)
+# RidgeConfig.neighbours of the control (GainRow.random)
+CONTROLS = ("random", "shuffled", "unlabelled")
 PENALTIES = {"shared": (1.0,), "banded": BANDED_SCALES}  # -> RidgeConfig.neighbour_scales
 
 

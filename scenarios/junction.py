@@ -196,7 +196,7 @@ class JunctionScenario(Scenario):
                 resume = uniform(rng, config.platoon_resume_accel_mps2)
             s = lead_s - np.concatenate([[0.0], np.cumsum(gaps)])  # front car first
             xy = lane.position(s)
-            heading = lane.heading_at(s)
+            heading = wrap_angle(lane.heading_at(s))  # as the world stores it: [-pi, pi)
             states.append(np.column_stack([xy, heading, np.full(size, speed)]))
             values = (route_index, speed, brake_at, decel, low, hold, resume)
             for name, value in zip(PROFILE_FIELDS, values):
@@ -207,7 +207,7 @@ class JunctionScenario(Scenario):
         """[x, y, heading, speed] of a car `s` metres along route `route_index`."""
         lane = self.routes[route_index]
         x, y = lane.position(s)
-        return np.array([x, y, float(lane.heading_at(s)), speed])
+        return np.array([x, y, float(wrap_angle(lane.heading_at(s))), speed])
 
     def junction_plan(
         self,
@@ -264,6 +264,7 @@ class JunctionExpert(Expert):
     def __init__(self, scenario: JunctionScenario, plans: Sequence[JunctionPlan]) -> None:
         super().__init__(scenario, plans)
         self._frame_steps = np.full(self.num_scenes, -1)
+        self._frame_world: BatchedWorld | None = None
 
     def _derive(self) -> None:
         plans = self.plans
@@ -278,8 +279,8 @@ class JunctionExpert(Expert):
     # --- route frames -----------------------------------------------------------------------
     def read_frames(self, world: BatchedWorld) -> None:
         """s, d, route heading and curvature (B*N,) of every car on its route."""
-        if np.array_equal(self._frame_steps, world.step_count):
-            return
+        if world is self._frame_world and np.array_equal(self._frame_steps, world.step_count):
+            return  # read already at this step of this world
         x, y, heading, speed = self.flat(world)
         xy = np.column_stack([x, y])
         self.s, self.d = np.zeros(len(x)), np.zeros(len(x))
@@ -292,7 +293,7 @@ class JunctionExpert(Expert):
             self.s[cars], self.d[cars] = s, d
             self.route_heading[cars] = lane.heading_at(s)
             self.curvature[cars] = lane.curvature_at(s + ahead[cars])
-        self._frame_steps = world.step_count.copy()
+        self._frame_steps, self._frame_world = world.step_count.copy(), world
 
     def expert_actions(self, world: BatchedWorld) -> np.ndarray:
         self.read_frames(world)

@@ -16,14 +16,17 @@ reaches the zone later than the turning car can leave it (accelerating at `go_ac
 it goes it accelerates to its turning speed and never reconsiders. The oncoming cars keep their
 speed (the turning car only goes when it is safe); distractors follow their profiles.
 
-Cases: `yield` (the first oncoming car arrives before the turning car could clear the zone:
-it waits for one or more cars) and `go` (the first oncoming car arrives late: it turns ahead of
-the whole stream). The gaps after the first car are drawn from `oncoming_gap_s`, so in `yield`
-the turning car lets one, two or all of them pass.
+Cases: the first oncoming car always arrives before the turning car could clear the zone, so
+it always waits for it. `first_gap` (major): a wide gap follows it, and the turning car goes
+in that gap; `later_gap` (minor): a tight gap follows it, so the turning car lets the second
+car pass too (and the third when the next gap is tight as well). Gaps are tight
+(`tight_gap_s`, too short to turn in) or wide (`wide_gap_s`, long enough); after the second car
+they are tight with probability `tight_gap_probability`.
 
 Labels: until it commits, the turning car attends to the oncoming car it is reading (its
 attention moves from one oncoming car to the next as each passes: once or twice per episode),
-then to nobody; every other car attends to nobody. Interaction period: the turning car is
+at the step it commits to the car whose gap it takes (that car's distance decided it), then to
+nobody; every other car attends to nobody. Interaction period: the turning car is
 reading an oncoming car (not yet committed).
 
 Episode: 50 recorded steps of 0.3 s (15 s), 12 observed (3.6 s).
@@ -73,9 +76,12 @@ class LeftTurnConfig(JunctionConfig):
     approach_speed_mps: Range = (6.0, 8.5)  # turning car's initial and approach speed
     turn_speed_mps: Range = (6.0, 8.0)  # its desired speed once it goes
     oncoming_speed_mps: Range = (7.0, 10.0)  # the stream's common speed
-    yield_arrival_s: Range = (1.0, 4.0)  # case yield: first car's arrival, before the turner's
-    go_arrival_margin_s: Range = (2.0, 4.0)  # case go: after the turner could leave + margin
-    oncoming_gap_s: Range = (2.5, 11.0)  # time gaps between oncoming cars
+    first_arrival_s: Range = (4.0, 6.5)  # the first oncoming car's arrival at the zone
+    # time gaps between consecutive oncoming cars: tight (too short to turn in) with
+    # probability `tight_gap_probability`, else wide (long enough)
+    tight_gap_s: Range = (2.0, 3.5)
+    wide_gap_s: Range = (8.5, 11.0)
+    tight_gap_probability: float = 0.5
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -93,14 +99,14 @@ class LeftTurnPlan(JunctionPlan):
 
     turn_speed_mps: float = 7.0
     approach_speed_mps: float = 7.0
-    yields: bool = True  # case yield
+    waits_twice: bool = False  # case later_gap: a tight gap after the first oncoming car
 
 
 class LeftTurnExpert(JunctionExpert):
     """The left-turn expert over B scenes: the turning car's gap acceptance (committed: (B,)
     bool) and the oncoming cars' constant speeds."""
 
-    plan_fields = ("turn_speed_mps", "approach_speed_mps", "yields")
+    plan_fields = ("turn_speed_mps", "approach_speed_mps", "waits_twice")
 
     def __init__(self, scenario: LeftTurn, plans: Sequence[LeftTurnPlan]) -> None:
         self.num_main = 1 + scenario.config.num_oncoming
@@ -146,8 +152,11 @@ class LeftTurnExpert(JunctionExpert):
         safe = ~any_left | (arrival >= leave + config.gap_margin_s)
         front = s_all[:, TURNING] + 0.5 * config.car_length_m
         near = front >= scenario.stop_line_s - config.decision_distance_m
-        self.committed |= safe & near & world.active[:, TURNING]
-        self.reading[:] = np.where(self.committed | ~any_left, NO_ATTENTION, car)
+        newly = safe & near & world.active[:, TURNING] & ~self.committed
+        self.committed |= newly
+        # it reads the car it times, and at the step it goes the one whose gap it takes
+        reading = np.where(self.committed & ~newly, NO_ATTENTION, car)
+        self.reading[:] = np.where(any_left, reading, NO_ATTENTION)
 
     def _main_accelerations(self, world: BatchedWorld) -> np.ndarray:
         scenario: LeftTurn = self.scenario
@@ -174,8 +183,8 @@ class LeftTurn(JunctionScenario):
     """Unprotected Left Turn v0 (see the module docstring)."""
 
     default_name = "left_turn_v0"
-    case_names = ("yield", "go")
-    default_major_case = "yield"
+    case_names = ("first_gap", "later_gap")
+    default_major_case = "first_gap"
     config_class = LeftTurnConfig
     expert_class = LeftTurnExpert
 
@@ -202,31 +211,21 @@ class LeftTurn(JunctionScenario):
 
     def sample_plan(self, rng: np.random.Generator, case: str) -> LeftTurnPlan:
         config: LeftTurnConfig = self.config
-        yields = self.check_case(case) == "yield"
+        waits_twice = self.check_case(case) == "later_gap"
         approach = uniform(rng, config.approach_speed_mps)
         turn_speed = uniform(rng, config.turn_speed_mps)
         front_to_line = uniform(rng, config.turn_start_m)
         s_turn = self.stop_line_s - front_to_line - 0.5 * config.car_length_m
         stream_speed = uniform(rng, config.oncoming_speed_mps)
-        # when the turning car could leave the zone if it went at once
-        leave = float(
-            time_to_cover(
-                np.array(
-                    self.turn_conflict_s
-                    + config.conflict_clear_m
-                    + 0.5 * config.car_length_m
-                    - s_turn
-                ),
-                np.array(approach),
-                config.go_accel_mps2,
-                np.array(turn_speed),
-            )
+        first = uniform(rng, config.first_arrival_s)
+        tight = rng.random(config.num_oncoming - 1) < config.tight_gap_probability
+        if len(tight):
+            tight[0] = waits_twice  # the case decides the gap after the first car
+        gaps = np.where(
+            tight,
+            rng.uniform(*config.tight_gap_s, size=len(tight)),
+            rng.uniform(*config.wide_gap_s, size=len(tight)),
         )
-        if yields:
-            first = uniform(rng, config.yield_arrival_s)
-        else:
-            first = leave + config.gap_margin_s + uniform(rng, config.go_arrival_margin_s)
-        gaps = rng.uniform(*config.oncoming_gap_s, size=config.num_oncoming - 1)
         arrivals = first + np.concatenate([[0.0], np.cumsum(gaps)])
         zone_entry = self.oncoming_conflict_s - config.conflict_clear_m
         oncoming_s = zone_entry - stream_speed * arrivals
@@ -246,7 +245,7 @@ class LeftTurn(JunctionScenario):
             LeftTurnPlan,
             turn_speed_mps=turn_speed,
             approach_speed_mps=approach,
-            yields=yields,
+            waits_twice=waits_twice,
         )
 
     # --- the manual --------------------------------------------------------------------------
@@ -257,11 +256,12 @@ class LeftTurn(JunctionScenario):
             f"{span(config.approach_speed_mps, 'm/s')} and turns left across a stream of "
             f"{config.num_oncoming} brown oncoming cars (`car_1` ... `car_{config.num_oncoming}`, "
             f"one common speed of {span(config.oncoming_speed_mps, 'm/s')}, time gaps of "
-            f"{span(config.oncoming_gap_s, 's')}). It reads the first oncoming car that has not "
+            f"{span(config.tight_gap_s, 's')} or {span(config.wide_gap_s, 's')}). It reads the first oncoming car that has not "
             f"passed the crossing point and goes when that car arrives later than it can clear "
             f"the crossing plus {config.gap_margin_s:g} s; otherwise it stops at its line and "
-            "waits. Case `yield`: the first oncoming car arrives first, so it waits for one or "
-            "more; case `go`: it turns ahead of the stream."
+            "waits. The first oncoming car always arrives first; case `first_gap`: a wide gap "
+            "follows it and the green car turns in it; case `later_gap`: a tight one, so it "
+            "lets two or more cars pass."
         )
 
     @classmethod

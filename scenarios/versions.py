@@ -14,6 +14,7 @@ from scenarios.double_merge_reactive import ReactiveDoubleMerge
 from scenarios.halting_car import HaltingCar
 from scenarios.halting_car_reactive import ReactiveHaltingCar
 from scenarios.left_turn import LeftTurn
+from scenarios.roundabout_entry import RoundaboutEntry
 from scenarios.versioning import Version, family_versions
 
 DOUBLE_MERGE = family_versions(
@@ -83,4 +84,16 @@ LEFT_TURN = family_versions(
     ),
 )
 
-FAMILY_VERSIONS = (DOUBLE_MERGE, HALTING_CAR, LEFT_TURN)
+ROUNDABOUT_ENTRY = family_versions(
+    "roundabout_entry",
+    "Roundabout Entry",
+    Version(
+        code=RoundaboutEntry,
+        changes="first version: a car entering a single-lane roundabout yields to a "
+        "circulating car or goes ahead of it, which then follows it; braking distractor columns",
+        why="What the entering car reads of the circulating car decides the case, labels are "
+        "causal both ways, and distractors brake and resume without any causal link.",
+    ),
+)
+
+FAMILY_VERSIONS = (DOUBLE_MERGE, HALTING_CAR, LEFT_TURN, ROUNDABOUT_ENTRY)

@@ -6,11 +6,15 @@ from __future__ import annotations
 from functools import cache
 
 from scenarios import VERSIONS, Episode, rollout_batch
+from scenarios.junction import JunctionScenario
 
 NUM_SAFETY_SEEDS = 200
 CASES = [
     (name, case) for name, version in VERSIONS.items() for case in version.scenario_class.case_names
 ]
+JUNCTIONS = [n for n, v in VERSIONS.items() if issubclass(v.scenario_class, JunctionScenario)]
+STRAIGHT_CASES = [(name, case) for name, case in CASES if name not in JUNCTIONS]  # one road
+JUNCTION_CASES = [(name, case) for name, case in CASES if name in JUNCTIONS]
 
 
 @cache

@@ -35,7 +35,7 @@ from scenarios.versioning import Version, family_versions
 
 
 def test_every_family_numbers_its_versions_from_zero():
-    assert list(FAMILIES) == ["double_merge", "halting_car", "left_turn"]
+    assert list(FAMILIES) == ["double_merge", "halting_car", "left_turn", "roundabout_entry"]
     for family, versions in FAMILIES.items():
         assert [v.number for v in versions] == list(range(len(versions)))
         assert all(v.name == f"{family}_v{v.number}" for v in versions)
