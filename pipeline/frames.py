@@ -37,6 +37,16 @@ ROLE_MEANINGS: dict[str, dict[str, str]] = {
         "main_brown": "main car (brown)",
         "distractor": "other cars",
     },
+    "left_turn": {
+        "main_green": "turning car (green)",
+        "main_brown": "oncoming cars (brown)",
+        "distractor": "other cars",
+    },
+    "roundabout_entry": {
+        "main_green": "entering car (green)",
+        "main_brown": "circulating car (brown)",
+        "distractor": "other cars",
+    },
 }
 GENERIC_MEANINGS = {"main_green": "main car (green)", "main_brown": "main car (brown)"}
 REMOVAL_REASONS = {"collided": "collided", "off_road": "left the road"}

@@ -178,6 +178,12 @@ class Scenario(ABC):
     def control_period_s(self) -> float:
         return self.config.recorded_dt
 
+    def position_bounds(self) -> tuple[float, float, float, float]:
+        """(x_min, y_min, x_max, y_max) [m] of the road surface: the straight road's box
+        [0, road_length_m] x [0, num_lanes * lane_width_m] (scenarios on a layout override it).
+        The environments' observation bounds come from it (`scenarios.scenes`)."""
+        return 0.0, 0.0, self.road.length_m, self.road.width_m
+
     def check_case(self, case: str) -> str:
         if case not in self.case_names:
             raise ValueError(f"{self.name}: unknown case {case!r}; choose from {self.case_names}")

@@ -18,12 +18,12 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from carlo_lite import World, render_rgb
+from carlo_lite import World
 from scenarios.base import ScenarioConfig
+from scenarios.frames import render_scene
 from scenarios.scenes import EGO_FEATURES, RewardWeights, Scenes, action_bounds, observation_bounds
 from scenarios.versioning import ScenarioVersion
 
-FRAME_WIDTH_PX, FRAME_HEIGHT_PX = 800, 200
 RENDER_MODES = ("human", "rgb_array")
 # PettingZoo's API checkers (api_test, parallel_api_test) call reset(seed=0, options={"options": 1})
 # only to see that reset takes these keywords: reset accepts and ignores this one key silently.
@@ -134,7 +134,7 @@ class ScenarioParallelEnv(ParallelEnv):
         num_cars = self.scenario.num_cars
         self.possible_agents = [f"car_{index}" for index in range(num_cars)]
         self.agent_index = {agent: index for index, agent in enumerate(self.possible_agents)}
-        low, high = observation_bounds(self.config, num_cars)
+        low, high = observation_bounds(self.scenario)
         action_low, action_high = action_bounds(self.config)
         self._observation_spaces = {
             agent: spaces.Box(low, high, dtype=np.float32) for agent in self.possible_agents
@@ -278,18 +278,15 @@ class ScenarioParallelEnv(ParallelEnv):
 
     # --- rendering -------------------------------------------------------------------------------
     def render(self) -> np.ndarray | None:
-        """rgb_array: a (200, 800, 3) uint8 top-down frame centred on the main cars; human: show
-        it in a window and return None."""
+        """rgb_array: a top-down uint8 frame, (200, 800, 3) following the main cars on the
+        straight road, (400, 400, 3) centred on the junction on a layout
+        (`scenarios.frames`); human: show it in a window and return None."""
         if self.render_mode is None:
             warnings.warn("render() called without a render_mode; nothing drawn", stacklevel=2)
             return None
         if self.world is None:
             raise RuntimeError("call reset() before render()")
-        main = np.nonzero(self.world.active[:2])[0]
-        center = None
-        if len(main):
-            center = (float(self.world.xy[main, 0].mean()), 0.5 * self.scenario.road.width_m)
-        frame = render_rgb(self.world, FRAME_WIDTH_PX, FRAME_HEIGHT_PX, center_xy=center)
+        frame = render_scene(self.scenario, self.world)
         if self.render_mode == "rgb_array":
             return frame
         if self._viewer is None:

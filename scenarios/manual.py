@@ -12,21 +12,24 @@ from __future__ import annotations
 import re
 import textwrap
 
-from scenarios.base import ScenarioConfig, span
+from scenarios.base import DISTRACTOR, Scenario, ScenarioConfig, span
+from scenarios.frames import on_layout
+from scenarios.junction import JunctionScenario
 from scenarios.scenes import OTHER_FEATURES, observation_bounds
 from scenarios.versioning import ScenarioVersion
 
 
 def environment_manual(version: ScenarioVersion, history: list[ScenarioVersion]) -> str:
     """The manual of `version`'s environment; `history` is its family's versions up to it."""
-    config = version.config()
+    scenario = version.make()
+    config = scenario.config
     sections = [
         f"{version.title} v{version.number} as a PettingZoo parallel environment ({version.name}).",
-        _section("Description", _description(version, config)),
+        _section("Description", _description(version, scenario)),
         _section("Action Space", _actions(config)),
-        _section("Observation Space", _observations(config)),
-        _section("Rewards", _rewards(config)),
-        _section("Starting State", _starting_state(version, config)),
+        _section("Observation Space", _observations(scenario)),
+        _section("Rewards", _rewards(scenario)),
+        _section("Starting State", _starting_state(version, scenario)),
         _section("Episode End", _episode_end(version, config)),
         _section("Infos", _infos(version, config)),
         _section("Arguments", _arguments(version, config)),
@@ -53,11 +56,10 @@ def _wrap(line: str, width: int = 96) -> str:
     return wrapped.replace("\0", " ")
 
 
-def _description(version: ScenarioVersion, config: ScenarioConfig) -> str:
-    last = config.num_cars - 1
+def _description(version: ScenarioVersion, scenario: Scenario) -> str:
+    config = scenario.config
     return (
-        f"{version.scenario_class.manual_description(config)} `car_2` ... `car_{last}` are "
-        f"distractors driving straight at constant speed on lanes 0 and {config.num_lanes - 1}. "
+        f"{version.scenario_class.manual_description(config)} {_distractors(scenario)} "
         f"All randomness comes from the reset seed; the ranges are the fields of "
         f"`{type(config).__name__}`, with this version's values from "
         f'`scenarios.version("{version.name}").config()` (the `config` argument takes one).'
@@ -81,13 +83,43 @@ def _actions(config: ScenarioConfig) -> str:
     )
 
 
-def _observations(config: ScenarioConfig) -> str:
-    num_cars = config.num_cars
-    low, high = observation_bounds(config, num_cars)
-    rows = [
+def _distractors(scenario: Scenario) -> str:
+    """The sentence on the distractors: who they are and how they drive."""
+    config = scenario.config
+    indices = [index for index, role in enumerate(scenario.roles) if role == DISTRACTOR]
+    if not indices:
+        return "There are no distractors."
+    cars = f"`car_{indices[0]}` ... `car_{indices[-1]}` are distractors"
+    if isinstance(scenario, JunctionScenario):
+        return (
+            f"{cars}: columns of {config.platoon_size} on lanes that no main car uses, the cars "
+            f"of a column sharing one speed profile (cruising at "
+            f"{span(config.distractor_speed_mps, 'm/s')}, then braking to a slower speed or to "
+            "a stop at its line, and resuming); none of them reacts to another car."
+        )
+    return f"{cars} driving straight at constant speed on lanes 0 and {config.num_lanes - 1}."
+
+
+def _position_rows(scenario: Scenario) -> list[tuple[int, str]]:
+    """The observation table's rows of the ego position and heading."""
+    if on_layout(scenario):
+        return [
+            (0, "ego x [m] (world frame of the layout)"),
+            (1, "ego y [m] (world frame of the layout)"),
+            (2, "ego heading [rad] (0 = +x, counter-clockwise)"),
+        ]
+    return [
         (0, "ego x along the road [m]"),
-        (1, f"ego y across the road [m] (lane i: {config.lane_width_m:g} i..)"),
+        (1, f"ego y across the road [m] (lane i: {scenario.config.lane_width_m:g} i..)"),
         (2, "ego heading [rad] (0 = along the road)"),
+    ]
+
+
+def _observations(scenario: Scenario) -> str:
+    num_cars = scenario.num_cars
+    low, high = observation_bounds(scenario)
+    rows = [
+        *_position_rows(scenario),
         (3, "ego speed [m/s]"),
         (4, "other car k present (1) or removed (0)"),
         (5, "other car k: x - ego x [m]"),
@@ -122,16 +154,33 @@ def _bound(value: float) -> str:
     return f"{value:g}"
 
 
-def _rewards(config: ScenarioConfig) -> str:
-    top = config.limits.max_speed_mps
+def _rewards(scenario: Scenario) -> str:
+    top = scenario.config.limits.max_speed_mps
+    if on_layout(scenario):
+        progress = (
+            f"`speed_reward_weight * v cos(heading - route heading) / {top:g}` (progress along "
+            "the car's own route, its heading relative to the route's at the car's closest "
+            "point on it; at most 0.1 by default)"
+        )
+    else:
+        progress = (
+            f"`speed_reward_weight * v cos(heading) / {top:g}` (forward progress, at most 0.1 by "
+            "default)"
+        )
     return (
-        f"Per agent and step: `speed_reward_weight * v cos(heading) / {top:g}` (forward "
-        "progress, at most 0.1 by default), plus `collision_reward` (-1) if it collided and "
+        f"Per agent and step: {progress}, plus `collision_reward` (-1) if it collided and "
         "`off_road_reward` (-1) if any part of it left the road during the step."
     )
 
 
-def _starting_state(version: ScenarioVersion, config: ScenarioConfig) -> str:
+def _starting_state(version: ScenarioVersion, scenario: Scenario) -> str:
+    config = scenario.config
+    if isinstance(scenario, JunctionScenario):
+        return (
+            f"{version.scenario_class.manual_starting_state(config)} Distractor columns: "
+            f"{config.platoon_size} cars {span(config.distractor_gap_m, 'm')} apart (centre to "
+            "centre)."
+        )
     per_lane = config.num_distractors - config.num_distractors // 2
     first = span(config.distractor_first_x_m).replace(" to ", ", ")
     return (

@@ -6,7 +6,8 @@ Rules: every car's control (B, N, 2) is held for `record_every` simulation steps
 collides or leaves the road is removed at once (frozen, no longer colliding, presence 0 in the
 others' observations) and its agent terminates; an agent's observation (D,) is its own state and
 then, for every other car in agent order, a presence flag and that car's state relative to it;
-its reward is forward progress plus penalties for a collision and for leaving the road.
+its reward is progress (speed along the road, or along its route at a junction) plus penalties
+for a collision and for leaving the road.
 """
 
 from __future__ import annotations
@@ -19,19 +20,38 @@ import numpy as np
 from carlo_lite import BatchedWorld, wrap_angle
 from scenarios.base import Scenario, ScenarioConfig, ScenarioPlan
 from scenarios.expert import expert_for
+from scenarios.junction import JunctionExpert
 
 EGO_FEATURES = 4  # x, y, heading, speed
 OTHER_FEATURES = 5  # presence, dx, dy, d_heading, d_speed
 
 
-def observation_bounds(config: ScenarioConfig, num_cars: int) -> tuple[np.ndarray, np.ndarray]:
-    """Lower and upper bounds (D,) float32 of one agent's observation; D = 4 + 5 (N - 1)."""
-    length, width = config.road_length_m, config.num_lanes * config.lane_width_m
-    top_speed = config.limits.max_speed_mps
-    ego_low = [0.0, 0.0, -np.pi, 0.0]
-    ego_high = [length, width, np.pi, top_speed]
+def position_box(scenario: Scenario) -> tuple[float, float, float, float]:
+    """(x_min, y_min, x_max, y_max) [m] that observed positions are clipped to: the scenario's
+    `position_bounds()` rounded outwards to whole metres (so the manual states them exactly;
+    the straight road's box [0, length] x [0, width] is kept as it is)."""
+    x_min, y_min, x_max, y_max = scenario.position_bounds()
+    return (
+        float(np.floor(x_min)),
+        float(np.floor(y_min)),
+        float(np.ceil(x_max)),
+        float(np.ceil(y_max)),
+    )
+
+
+def observation_bounds(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds (D,) float32 of one agent's observation; D = 4 + 5 (N - 1).
+
+    Positions lie in the scenario's box (`position_box`); a relative position is at most the
+    box's extent either way."""
+    x_min, y_min, x_max, y_max = position_box(scenario)
+    length, width = x_max - x_min, y_max - y_min
+    top_speed = scenario.config.limits.max_speed_mps
+    ego_low = [x_min, y_min, -np.pi, 0.0]
+    ego_high = [x_max, y_max, np.pi, top_speed]
     other_low = [0.0, -length, -width, -np.pi, -top_speed]
     other_high = [1.0, length, width, np.pi, top_speed]
+    num_cars = scenario.num_cars
     low = np.array(ego_low + other_low * (num_cars - 1), dtype=np.float32)
     high = np.array(ego_high + other_high * (num_cars - 1), dtype=np.float32)
     return low, high
@@ -78,7 +98,9 @@ def advance_scenes(
 @dataclass(frozen=True)
 class RewardWeights:
     """Reward per agent and step: `speed` x v cos(heading) / max speed, plus `collision` if it
-    collided and `off_road` if it left the road during the step."""
+    collided and `off_road` if it left the road during the step. The heading is relative to the
+    direction of progress (`Scenes.progress_heading`): the road's on the straight road, the
+    car's route's on a junction layout (speed along the route, so circling earns nothing)."""
 
     speed: float = 0.1
     collision: float = -1.0
@@ -94,7 +116,7 @@ class Scenes:
         self.expert = expert_for(scenario, plans)
         self.world = self.expert.make_world()
         self.num_scenes, self.num_cars = len(plans), scenario.num_cars
-        self._low, self._high = observation_bounds(self.config, self.num_cars)
+        self._low, self._high = observation_bounds(scenario)
         # every car's observation lists the others in agent order, skipping itself: (N, N-1)
         everyone = np.arange(self.num_cars)
         self._others = np.array([np.delete(everyone, index) for index in everyone])
@@ -160,12 +182,22 @@ class Scenes:
         """(B, N) float: the reward of every car for the step that flagged `collided` and
         `off_road` (B, N)."""
         world = self.world
-        forward = world.speed * np.cos(world.heading)  # (B, N) [m/s]
+        forward = world.speed * np.cos(self.progress_heading())  # (B, N) [m/s]
         return (
             weights.speed * forward / self.config.limits.max_speed_mps
             + weights.collision * collided
             + weights.off_road * off_road
         )
+
+    def progress_heading(self) -> np.ndarray:
+        """(B, N) [rad]: each car's heading relative to the direction of progress, the road's
+        (+x) on the straight road and its route's at its closest point on a layout."""
+        world = self.world
+        if not isinstance(self.expert, JunctionExpert):
+            return world.heading
+        self.expert.read_frames(world)  # once per step: the expert's own route frames
+        route_heading = self.expert.route_heading.reshape(self.num_scenes, self.num_cars)
+        return world.heading - route_heading
 
     def labels(self) -> tuple[np.ndarray, np.ndarray]:
         """(attention (B, N) int16, interaction (B,) bool) at the current step."""

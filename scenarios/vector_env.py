@@ -40,15 +40,10 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from carlo_lite import World, render_rgb
+from carlo_lite import World
 from scenarios.base import ScenarioConfig
-from scenarios.env import (
-    FRAME_HEIGHT_PX,
-    FRAME_WIDTH_PX,
-    EpisodeSeeds,
-    action_array,
-    reset_case,
-)
+from scenarios.env import EpisodeSeeds, action_array, reset_case
+from scenarios.frames import render_scene
 from scenarios.registry import resolve
 from scenarios.scenes import RewardWeights, Scenes, action_bounds, observation_bounds
 from scenarios.versioning import ScenarioVersion
@@ -98,7 +93,7 @@ class ScenarioVectorEnv:
         num_cars = self.scenario.num_cars
         self.possible_agents = [f"car_{index}" for index in range(num_cars)]
         self.agents = self.possible_agents[:]  # every agent has a row in every scene
-        low, high = observation_bounds(self.config, num_cars)
+        low, high = observation_bounds(self.scenario)
         self._single_observation_space = spaces.Box(low, high, dtype=np.float32)
         self._single_action_space = spaces.Box(*action_bounds(self.config), dtype=np.float32)
         self._observation_space = batch_space(self._single_observation_space, num_envs)
@@ -311,15 +306,12 @@ class ScenarioVectorEnv:
         }
 
     def render(self, scene: int = 0) -> np.ndarray:
-        """A (200, 800, 3) uint8 top-down frame of `scene`, centred on its main cars."""
+        """A top-down uint8 frame of `scene`, as the PettingZoo environment's
+        (`scenarios.frames`): (200, 800, 3) following its main cars on the straight road,
+        (400, 400, 3) centred on the junction on a layout."""
         if self.scenes is None:
             raise RuntimeError("call reset() before render()")
-        world = World.from_scene(self.scenes.world, scene)
-        main = np.nonzero(world.active[:2])[0]
-        center = None
-        if len(main):
-            center = (float(world.xy[main, 0].mean()), 0.5 * self.scenario.road.width_m)
-        return render_rgb(world, FRAME_WIDTH_PX, FRAME_HEIGHT_PX, center_xy=center)
+        return render_scene(self.scenario, World.from_scene(self.scenes.world, scene))
 
     def close(self) -> None:
         """Nothing to release (no window); for the Gymnasium interface."""

@@ -380,3 +380,40 @@ def test_the_tool_refuses_a_page_too_large_and_thins_it_on_request(tmp_path):
     done = run_tool("view.py", *argv)
     assert done.returncode == 0, done.stderr
     assert f"(the first {fit}; {128 - fit} left out)" in done.stdout
+
+
+# ---- a junction: the layout's lanes as polygons ---------------------------------------------
+def test_a_junction_dataset_carries_its_lanes_as_polygons(tmp_path):
+    """Left turn v0: 4 arms of 200 m beyond a box of half width 3.5 + 4 m, lanes 3.5 m wide,
+    traffic on the right. The south approach `in_south` runs north along x = 1.75 from
+    y = -207.5 to the box edge at y = -7.5: its outline is x = 0 (left edge) and x = 3.5."""
+    config = GenerateConfig.for_scenario(
+        "left_turn_v0", num_major=1, num_minor=1, num_test=1, seed=0
+    )
+    data = generate_dataset(config, tmp_path / "lt.h5", progress=False).path
+    spec, arrays = page_content(make_viewer(data).text)
+    road = spec["road"]
+    assert set(road) == {"car_length_m", "car_width_m", "lanes"}
+    assert (road["car_length_m"], road["car_width_m"]) == (4.5, 1.8)
+    assert len(road["lanes"]) == 4 * 2 + 4 * 3  # in and out per arm, 3 turns per approach
+    assert [0.0, -207.5, 0.0, -7.5, 3.5, -7.5, 3.5, -207.5] in road["lanes"]
+    # every car's position at every step lies inside the union of the polygons' boxes
+    points = np.concatenate([np.reshape(flat, (-1, 2)) for flat in road["lanes"]])
+    xy = arrays["xy"][arrays["valid"].astype(bool)]
+    assert (xy.min(axis=0) >= points.min(axis=0) - 1e-3).all()
+    assert (xy.max(axis=0) <= points.max(axis=0) + 1e-3).all()
+
+
+def test_a_junction_road_is_rebuilt_from_the_stored_configuration():
+    """Arms of 120 m instead of 200: the lanes' square-cut far ends lie 120 + 7.5 m from the
+    centre, so the outline spans [-127.5, 127.5] both ways."""
+    from pipeline.viewer.roads import road_of
+    from scenarios import version
+
+    stored = version("left_turn_v0").config(arm_length_m=120.0).to_dict()
+    meta = replace(make_meta(), scenario="left_turn_v0", config={"scenario": stored})
+    points = np.concatenate([np.reshape(flat, (-1, 2)) for flat in road_of(meta)["lanes"]])
+    np.testing.assert_allclose(points.min(axis=0), [-127.5, -127.5])
+    np.testing.assert_allclose(points.max(axis=0), [127.5, 127.5])
+    straight = replace(make_meta(), scenario="double_merge_v0", config={"scenario": {}})
+    assert road_of(straight) is None  # nothing recorded: no road

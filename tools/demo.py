@@ -30,7 +30,6 @@ import imageio.v3 as iio
 import numpy as np
 from tqdm import tqdm
 
-from carlo_lite import render_rgb
 from pipeline.cli import (
     FAILED,
     INTERRUPTED,
@@ -57,6 +56,7 @@ from predictor.presets import DEFAULT_PRESET, make_configs
 from predictor.run_files import RunError, RunWriteError
 from predictor.training import train
 from scenarios import env_module
+from scenarios.frames import render_scene
 from trajectory_data.reader import read_meta, read_split
 
 DEMO_SCENARIO = DEFAULT_SCENARIO  # the generator's default (Double Merge v1)
@@ -92,9 +92,9 @@ def simulate_episode(out: Path, seed: int) -> Path:
     steps = env.unwrapped.max_cycles
     for step in tqdm(range(steps), desc="simulate an episode", unit="step", file=sys.stderr):
         env.step(env.unwrapped.expert_actions())
-        center = (float(world.xy[:2, 0].mean()), world.road.width_m / 2)
         title = f"{DEMO_SCENARIO}, minor case, expert drivers: t = {(step + 1) * dt:.1f} s"
-        frames.append(annotate(render_rgb(world, 640, 160, center_xy=center), title, legend))
+        frame = render_scene(env.unwrapped.scenario, world, 640, 160)
+        frames.append(annotate(frame, title, legend))
     status("simulate: writing episode.png and episode.gif")
     iio.imwrite(out / "episode.png", frames[len(frames) // 2])
     iio.imwrite(out / "episode.gif", np.stack(frames[::2]), duration=200, loop=0)

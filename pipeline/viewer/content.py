@@ -31,23 +31,13 @@ import numpy as np
 
 from pipeline.viewer.inputs import Shown
 from pipeline.viewer.pack import quantize_unit
+from pipeline.viewer.roads import road_of
 from pipeline.viewer.scores import scene_scores
 from predictor.plots import role_color
-from trajectory_data.format import DatasetMeta
 
 SPEC_FORMAT = "smooth-attention-viewer"
 SPEC_VERSION = 1
 SHOWN_SAMPLES = 6  # sampled futures per scene the page carries (a predictions file has up to K)
-ROAD_KEYS = ("num_lanes", "lane_width_m", "road_length_m", "car_length_m", "car_width_m")
-
-
-def road_of(meta: DatasetMeta) -> dict | None:
-    """The straight road of a synthetic scenario (its config's dimensions), None for real data
-    (no road recorded): the page then draws agents as dots on a plain background."""
-    scenario = meta.config.get("scenario")
-    if not isinstance(scenario, dict) or any(k not in scenario for k in ROAD_KEYS):
-        return None
-    return {key: float(scenario[key]) for key in ROAD_KEYS}
 
 
 def scene_arrays(shown: Shown) -> dict[str, np.ndarray]:

@@ -139,7 +139,7 @@ class Viewer {
     }
     if (!Number.isFinite(x0)) { x0 = 0; x1 = 0; y0 = 0; y1 = 0; }
     const road = this.spec.road;
-    if (road) { y0 = Math.min(y0, 0); y1 = Math.max(y1, road.num_lanes * road.lane_width_m); }
+    if (road && !road.lanes) { y0 = Math.min(y0, 0); y1 = Math.max(y1, road.num_lanes * road.lane_width_m); }
     const widen = (lo, hi) => (hi - lo >= MIN_EXTENT_M ? [lo, hi] : [(lo + hi - MIN_EXTENT_M) / 2, (lo + hi + MIN_EXTENT_M) / 2]);
     [x0, x1] = widen(x0, x1);
     [y0, y1] = widen(y0, y1);
@@ -418,6 +418,7 @@ class Viewer {
     ctx.fillStyle = road ? GRASS_COLOR : PLAIN_COLOR;
     ctx.fillRect(0, 0, v.width, v.height);
     if (!road) { this.drawGrid(ctx, v); return; }
+    if (road.lanes) { this.drawLanes(ctx, v, road.lanes); return; }
     const top = road.num_lanes * road.lane_width_m;
     const [c0, r0] = Viewer.toPixel(v, 0, top), [c1, r1] = Viewer.toPixel(v, road.road_length_m, 0);
     ctx.fillStyle = ROAD_COLOR;
@@ -432,6 +433,26 @@ class Viewer {
       ctx.beginPath(); ctx.moveTo(a, ra); ctx.lineTo(b, ra); ctx.stroke();
     }
     ctx.setLineDash([]);
+  }
+
+  // a junction layout: every lane is a polygon [x0, y0, x1, y1, ...] [m]; the road is their
+  // union. Each outline is stroked wide in the marking colour, then all are filled: only the
+  // union's boundary keeps a (half-width) edge line.
+  drawLanes(ctx, v, lanes) {
+    const trace = (flat) => {
+      ctx.beginPath();
+      for (let p = 0; p < flat.length; p += 2) {
+        const [c, r] = Viewer.toPixel(v, flat[p], flat[p + 1]);
+        if (p === 0) ctx.moveTo(c, r); else ctx.lineTo(c, r);
+      }
+      ctx.closePath();
+    };
+    ctx.strokeStyle = MARKING_COLOR;
+    ctx.lineWidth = Math.max(2, 0.3 * v.k);
+    ctx.lineJoin = "round";
+    for (const flat of lanes) { trace(flat); ctx.stroke(); }
+    ctx.fillStyle = ROAD_COLOR;
+    for (const flat of lanes) { trace(flat); ctx.fill(); }
   }
 
   drawGrid(ctx, v) {
