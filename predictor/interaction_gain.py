@@ -9,8 +9,9 @@ of its scene), the test ADE of ridge regressions fitted on the training split wi
 - `labelled`: plus the history of the agent its label names (oracle; where the label moves from
   car to car during a scene, of every agent it names, `predictor.baselines.attended_agents`),
 - `random`: plus the history of as many random other agents (the control; with
-  `control="unlabelled"` random agents it never attends to, with `control="shuffled"` the labelled agent's history from another scene, a null control that carries nothing about
-  the scene: it measures what fitting such features costs at the file's size),
+  `control="unlabelled"` random agents it never attends to, with `control="shuffled"` the
+  labelled agents' histories from another scene, a null control that carries nothing about the
+  scene: it measures what fitting such features costs at the file's size),
 
 per case and role. `gain` = 1 - labelled / own (how much the attended car explains); `control`
 = random / own - 1 (what any extra car does). A scenario whose labels are causal and observable

@@ -14,7 +14,7 @@ from scenario_episodes import JUNCTION_CASES, episodes, scenario
 
 from carlo_lite import BatchedWorld, Intersection, LanePath, World, render_rgb
 from scenarios import rollout, rollout_batch
-from scenarios.counterfactual import PREDICTED, influence_matrices
+from scenarios.counterfactual import influence_matrices
 from scenarios.junction import conflict_point, profile_speed, time_to_cover
 from scenarios.left_turn import LeftTurn
 from scenarios.roundabout_entry import RoundaboutEntry
@@ -35,7 +35,7 @@ def test_a_car_is_off_a_layout_when_a_corner_leaves_every_lane() -> None:
     state = np.array(
         [
             [1.75, -20.0, np.pi / 2, 5.0],  # on its lane's centre
-            [1.75 + 0.8, -20.0, np.pi / 2, 5.0],  # a corner 0.1 m past the lane edge (x = 3.5)
+            [2.7, -30.0, np.pi / 2, 5.0],  # a corner 0.1 m past the lane's edge at x = 3.5
             [20.0, -20.0, 0.0, 5.0],  # on the grass between two arms
         ]
     )
@@ -109,24 +109,25 @@ def test_batched_scenes_match_scenes_rolled_out_alone(name: str, case: str) -> N
             np.testing.assert_array_equal(getattr(run, field), getattr(alone, field))
 
 
-@pytest.mark.parametrize("name", ["left_turn_v0", "roundabout_entry_v0"])
-def test_labelled_cars_influence_their_followers_more_than_any_distractor(name: str) -> None:
-    """Counterfactual ground truth: removing a car the label names moves the attending car's
-    predicted steps more than removing any distractor, in at least 95 % of scenes."""
+@pytest.mark.parametrize(("name", "case"), JUNCTION_CASES)
+def test_influence_of_labelled_cars_and_distractors(name: str, case: str) -> None:
+    """Counterfactual ground truth: a distractor moves no main car at all; a car that the label
+    names moves the attending car's predicted steps, removed for the whole episode or from the
+    first predicted step, except the circulating car that the entering car reads and then goes
+    ahead of (roundabout `go`): it would have gone without it, so that label has no influence."""
     sc = scenario(name)
     distractors = sc.roles == DISTRACTOR
-    wins = total = 0
-    for case in sc.case_names:
-        plans = [sc.plan(seed, case) for seed in range(20)]
-        influence = influence_matrices(sc, plans)[:, PREDICTED]  # (B, N, N)
-        for run, matrix in zip(rollout_batch(sc, range(20), [case] * 20), influence):
-            attending = np.nonzero((run.attention >= 0).any(axis=0))[0]
-            for agent in attending:
-                named = np.unique(run.attention[:, agent][run.attention[:, agent] >= 0])
-                total += 1
-                wins += matrix[agent, named].max() > matrix[agent, distractors].max()
-                assert matrix[agent, distractors].max() == 0.0  # no causal link at all
-    assert wins >= 0.95 * total
+    plans = [sc.plan(seed, case) for seed in range(20)]
+    influence = influence_matrices(sc, plans)  # (B, 2, N, N)
+    for run, matrix in zip(episodes(name, case)[:20], influence):
+        assert matrix[:, :, distractors][:, ~distractors].max() == 0.0
+        for agent in np.nonzero((run.attention >= 0).any(axis=0))[0]:
+            named = np.unique(run.attention[:, agent][run.attention[:, agent] >= 0])
+            reads_only = name.startswith("roundabout") and case == "go" and agent == 0
+            if reads_only:
+                assert matrix[:, agent, named].max() == 0.0
+            else:
+                assert (matrix[:, agent, named].max(axis=-1) > 0.05).all()
 
 
 # --- Unprotected Left Turn -----------------------------------------------------------------------
@@ -148,7 +149,8 @@ def test_left_turn_waits_for_the_cars_its_case_says_and_attention_moves_along_th
         assert len(read) == (2 if case == "first_gap" else 3)
         # the turning car enters the crossing only once every car it waited for has left it
         turn_s = _route_s(sc, 0, run.states[:, 0, :2])
-        enters = np.argmax(turn_s + 2.25 >= sc.turn_conflict_s - clear)
+        inside = turn_s + 2.25 >= sc.turn_conflict_s - clear
+        enters = np.argmax(inside) if inside.any() else len(inside)  # still waiting at the end
         for car in read[:-1]:
             car_s = _route_s(sc, 1, run.states[:, car, :2])
             left = np.argmax(car_s - 2.25 > sc.oncoming_conflict_s + clear)
@@ -156,17 +158,22 @@ def test_left_turn_waits_for_the_cars_its_case_says_and_attention_moves_along_th
         assert (run.attention[:, 1:] == -1).all()  # the others attend to nobody
 
 
-def test_left_turn_follower_reacts_to_an_oncoming_car_forced_to_stop() -> None:
-    """The turning car's label is causal: the oncoming car it waits for, forced to stop short
-    of the crossing, keeps it waiting; a distractor forced to stop changes nothing."""
+def test_left_turn_car_waits_longer_for_an_oncoming_car_forced_to_slow() -> None:
+    """The turning car's label is causal: the oncoming car it waits for, forced to slow down
+    after the observed steps, keeps it at its line longer; nobody collides."""
     sc = LeftTurn()
     base = rollout(sc, 2, "first_gap")
     forced = np.full_like(base.actions, np.nan)
-    forced[:, 1] = (0.0, -6.0)  # the first oncoming car brakes to a stop at once
-    held = rollout(sc, 2, "first_gap", forced_actions=forced)
-    assert not held.collided
-    assert (held.attention[:, 0] == 1).all()  # still waiting for it at the end
-    assert np.abs(held.states[:, 0, :2] - base.states[:, 0, :2]).max() > 10.0
+    forced[12:18, 1] = (0.0, -1.5)  # the first oncoming car slows by 2.7 m/s, then cruises
+    slowed = rollout(sc, 2, "first_gap", forced_actions=forced)
+    assert not slowed.collided
+
+    def goes(run):  # the step at which it stops reading the stream
+        return np.flatnonzero(run.attention[:, 0] >= 0)[-1]
+
+    assert goes(slowed) > goes(base)
+    np.testing.assert_array_equal(slowed.states[:13, 0], base.states[:13, 0])
+    assert np.abs(slowed.states[:, 0, :2] - base.states[:, 0, :2]).max() > 1.0
 
 
 def _runs(labels: np.ndarray) -> list[tuple[int, int]]:
