@@ -61,7 +61,7 @@ class RoundaboutEntryConfig(JunctionConfig):
 
     ring_radius_m: float = 15.0
     entry_radius_m: float = 12.0
-    lane_offset_m: float = 3.0
+    lane_offset_m: float = 2.0  # entry and exit lanes of an arm touch: no median
     roundabout_lane_width_m: float = 4.0
     arm_length_m: float = 200.0  # straight part of each entry and exit lane [m]
     distractor_speed_mps: Range = (4.0, 8.0)
