@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from carlo_lite.collision import CollisionChecker
-from carlo_lite.kinematics import CarLimits, bicycle_step, box_corners, wrap_angle
+from carlo_lite.kinematics import CarLimits, bicycle_step, wrap_angle
 from carlo_lite.layouts import RoadLayout
 from carlo_lite.road import StraightRoad
 
@@ -46,8 +46,8 @@ class BatchedWorld:
 
     Arguments:
         road: the road every scene drives on: a `StraightRoad` (its edges define off-road) or
-            any `RoadLayout` (an intersection, a roundabout: a car is off-road when a corner
-            of its body lies on no lane).
+            any `RoadLayout` (an intersection, a roundabout: a car is off-road when its centre
+            lies on no lane).
         state: initial states (B, N, 4) = [x m, y m, heading rad, speed m/s]; headings are
             wrapped to [-pi, pi) and speeds clipped to [0, limits.max_speed_mps].
         length_m, width_m, wheelbase_m: body sizes [m], a scalar or one per car (N,), the same
@@ -373,9 +373,10 @@ class BatchedWorld:
         return off
 
     def _off_layout(self) -> np.ndarray:
-        """(B, N) bool: some corner of the active car's body lies on no lane of the layout."""
-        corners = box_corners(self._xy, self._heading, self._flat_length, self._flat_width)
-        off = ~self.road.on_road(corners).all(axis=1)  # (B*N,)
+        """(B, N) bool: the active car's centre lies on no lane of the layout (how highway-env
+        judges a vehicle on a lane network; a body corner is too strict there: under random
+        controls it ended a third of the roundabout's cars within 1.2 s, against a sixth)."""
+        off = ~self.road.on_road(self._xy)  # (B*N,)
         return off.reshape(self._shape) & self._active
 
 

@@ -157,7 +157,7 @@ class RidgeDistribution:
                 "the ridge baseline's spread needs a fit on complete training agents first"
             )
         mean = self.ridge.predict(states, valid, attention, roles, case).astype(np.float64)
-        _, usable, frames = self.ridge.features(states, valid, attention)
+        _, usable, frames = self.ridge.features(states, valid, attention, roles)
         groups = self.ridge.group_keys(states, attention, roles, case)
         num_dims = 2 * mean.shape[1]
         chol = np.broadcast_to(

@@ -17,9 +17,9 @@ from agent-centric features of its observed history:
   after another), the others in the order it first attends to them, as many slots as the
   training data's agents attend to at most (`attended_agents`; one where labels never move);
   `"random"` takes as many other agents drawn at random (seeded), the control for
-  `"labelled"`; `"unlabelled"` draws them among the agents the agent never attends to (a control
-  without a causal link where several cars matter, such as a stream of oncoming cars whose other
-  members a random draw would pick); `"shuffled"` takes the labelled
+  `"labelled"` (with `random_role`, only agents of that role: a random *distractor*, where
+  several cars matter and a random other car may be one correlated with a causal one, such as
+  the next car of a stream of oncoming cars); `"shuffled"` takes the labelled
   agent's features of another scene (a seeded derangement of the scenes), a null control: the
   same features, with the same distribution, that carry nothing about this scene, so what they
   change is the cost of fitting features that carry nothing.
@@ -54,7 +54,7 @@ if TYPE_CHECKING:  # annotations only: the baselines run on plain numpy arrays
     from trajectory_data.format import DatasetMeta, TrajectorySet
 
 # the baselines' names and each ridge baseline's RidgeConfig fields: predictor.registry
-NEIGHBOUR_MODES = ("none", "nearest", "labelled", "random", "shuffled", "unlabelled")
+NEIGHBOUR_MODES = ("none", "nearest", "labelled", "random", "shuffled")
 # one regression per agent role; or, for the agents that carry an attention label, one per
 # relation to the labelled agent (RELATION_AHEAD / RELATION_BEHIND), whatever their role; or one
 # per role and scene case (an oracle gate: the case is read from the data, as the label is)
@@ -144,6 +144,8 @@ class RidgeConfig:
     # that carries nothing costs no accuracy (docs/scenarios.md: at 52 training scenes a random
     # car's features cost a few per cent with the shared penalty)
     neighbour_scales: tuple[float, ...] = (1.0,)
+    # "random" draws only agents of this role index (None: any other agent)
+    random_role: int | None = None
 
     def __post_init__(self) -> None:
         if not self.neighbour_scales or min(self.neighbour_scales) < 0:
@@ -258,7 +260,7 @@ class RidgeBaseline:
         self._check(states, num_observed)
         self.dt, self.num_observed = float(dt), int(num_observed)
         self.label_slots = max(1, attended_count(attention).max(initial=0))
-        features, usable, frames = self.features(states, valid, attention)
+        features, usable, frames = self.features(states, valid, attention, roles)
         target = self._target(states[..., :2], valid, frames)  # (n, N, T_pred * 2)
         roles = self.group_keys(states, attention, roles, case)
         complete = usable & valid[:, num_observed:].all(axis=1)  # (n, N)
@@ -313,7 +315,7 @@ class RidgeBaseline:
         self._check(states, self.num_observed)
         positions = states[..., :2]
         pred = constant_velocity(positions, valid, self.num_observed).astype(np.float64)
-        features, usable, frames = self.features(states, valid, attention)
+        features, usable, frames = self.features(states, valid, attention, roles)
         roles = self.group_keys(states, attention, roles, case)
         local = np.zeros(usable.shape + (pred.shape[1], 2))  # (n, N, T_pred, 2) offsets
         for role, model in self.models.items():
@@ -361,9 +363,14 @@ class RidgeBaseline:
             )
 
     def features(
-        self, states: np.ndarray, valid: np.ndarray, attention: np.ndarray
+        self,
+        states: np.ndarray,
+        valid: np.ndarray,
+        attention: np.ndarray,
+        roles: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, AgentFrames]:
-        """(n, N, F) features, (n, N) usable mask (whole history present), agent frames."""
+        """(n, N, F) features, (n, N) usable mask (whole history present), agent frames;
+        `roles` (n, N) is needed by `config.random_role` only."""
         t0, history = self.num_observed - 1, self.history
         window = slice(t0 - history, t0 + 1)  # history + 1 positions -> history velocities
         positions, frames = frames_at(states, t0)
@@ -378,7 +385,7 @@ class RidgeBaseline:
         acceleration = np.diff(velocity, axis=2) / self.dt  # (n, N, H-1, 2)
         n, num_agents = present.shape
         parts = [velocity.reshape(n, num_agents, -1), acceleration.reshape(n, num_agents, -1)]
-        for other in self._neighbours(positions[:, t0], present, attention):
+        for other in self._neighbours(positions[:, t0], present, attention, roles):
             feats = self._neighbour_features(track, present, other, frames)
             if self.config.neighbours == "shuffled":
                 feats = feats[scene_derangement(n, self.config.seed)]
@@ -386,7 +393,11 @@ class RidgeBaseline:
         return np.concatenate(parts, axis=-1), present, frames
 
     def _neighbours(
-        self, last: np.ndarray, present: np.ndarray, attention: np.ndarray
+        self,
+        last: np.ndarray,
+        present: np.ndarray,
+        attention: np.ndarray,
+        roles: np.ndarray | None = None,
     ) -> list[np.ndarray]:
         """Per neighbour slot, (n, N) index of the other agent (-1: none)."""
         mode = self.config.neighbours
@@ -396,9 +407,11 @@ class RidgeBaseline:
             return list(attended_agents(attention, self.label_slots))
         num_agents = last.shape[1]
         unusable = ~present[:, None, :] | np.eye(num_agents, dtype=bool)[None]  # (n, N, N)
-        if mode == "unlabelled":
-            unusable = unusable | attended_mask(attention)
-        if mode in ("random", "unlabelled"):  # uniform draws among the usable, without repeats
+        if mode == "random" and self.config.random_role is not None:
+            if roles is None:
+                raise ValueError("random_role needs the agents' roles")
+            unusable = unusable | (np.asarray(roles) != self.config.random_role)[:, None, :]
+        if mode == "random":  # uniform draws among the usable, without repeats
             draw = np.random.default_rng(self.config.seed).random(unusable.shape)
             score = np.where(unusable, np.inf, draw)
             order = np.argsort(score, axis=-1, kind="stable")  # (n, N, N)

@@ -9,7 +9,7 @@ of its scene), the test ADE of ridge regressions fitted on the training split wi
 - `labelled`: plus the history of the agent its label names (oracle; where the label moves from
   car to car during a scene, of every agent it names, `predictor.baselines.attended_agents`),
 - `random`: plus the history of as many random other agents (the control; with
-  `control="unlabelled"` random agents it never attends to, with `control="shuffled"` the
+  `control="distractor"` random agents of the role "distractor", with `control="shuffled"` the
   labelled agents' histories from another scene, a null control that carries nothing about the
   scene: it measures what fitting such features costs at the file's size),
 
@@ -47,7 +47,7 @@ from trajectory_data.reader import read_meta, read_split
 
 MODES = ("none", "labelled", "random")  # RidgeConfig.neighbours of own, labelled, random
 # RidgeConfig.neighbours of the control (GainRow.random)
-CONTROLS = ("random", "shuffled", "unlabelled")
+CONTROLS = ("random", "shuffled", "distractor")
 PENALTIES = {"shared": (1.0,), "banded": BANDED_SCALES}  # -> RidgeConfig.neighbour_scales
 
 
@@ -98,10 +98,20 @@ def interaction_gain(
     mask = prediction_mask(data.valid, meta.num_observed)  # (n, P, N)
     truth = data.states[:, meta.num_observed :, :, :2]
     ade = {}
+    random_role = None
+    if control == "distractor":
+        if "distractor" not in meta.role_names:
+            raise ValueError(f"{data_path}: no agent role named distractor for the control")
+        random_role = meta.role_names.index("distractor")
     for mode in MODES:
-        neighbours = control if mode == "random" else mode
+        neighbours = mode
+        if mode == "random":
+            neighbours = "random" if control == "distractor" else control
         config = RidgeConfig(
-            neighbours=neighbours, groups=grouping, neighbour_scales=PENALTIES[penalty]
+            neighbours=neighbours,
+            groups=grouping,
+            neighbour_scales=PENALTIES[penalty],
+            random_role=random_role if mode == "random" else None,
         )
         ridge = RidgeBaseline(config).fit_set(fit, meta)
         pred = ridge.predict_set(data, meta)

@@ -19,6 +19,8 @@ from predictor.baselines import (
     RIDGE_BASELINES,
     RidgeBaseline,
     RidgeConfig,
+    attended_agents,
+    attended_count,
     constant_velocity,
     relation_groups,
     scene_derangement,
@@ -151,6 +153,64 @@ def test_only_the_deciding_neighbour_explains_the_future(neighbours, informative
         assert error < 0.01
     else:  # the drift's sign and size are unknowable: the error stays near the drift itself
         assert error > 0.3
+
+
+def decided_by_two_in_turn(rng: np.random.Generator, n: int):
+    """As `decided_by_neighbour`, but agent 0's drift is the sum of agent 1's and agent 2's
+    lateral offsets (each beside it at its own distance ahead), and its label moves: agent 1
+    for the first 9 steps, agent 2 for the last 5 (agent 3, far away, is the distractor)."""
+    states, attention, roles = decided_by_neighbour(rng, n)
+    heading = states[:, 0, 0, 2]
+    normal = np.stack([-np.sin(heading), np.cos(heading)], -1)
+    ahead = np.stack([np.cos(heading), np.sin(heading)], -1)
+    lateral = rng.uniform(-3.0, 3.0, n)
+    states[:, :, 2, :2] = states[:, :, 0, :2] + (12.0 * ahead + lateral[:, None] * normal)[:, None]
+    states[:, :, 2, 2:] = states[:, :, 0, 2:]
+    k = np.arange(1, STEPS - OBSERVED + 1)
+    states[:, OBSERVED:, 0, :2] += (0.05 * lateral[:, None] * k[None] ** 2)[..., None] * normal[
+        :, None
+    ]
+    attention[:, 9:, 0] = 2
+    roles[:, 2] = 1  # agents 1 and 2 share a role; agent 3 is the only role-2 agent
+    return states, attention, roles
+
+
+def test_attended_agents_lists_the_most_attended_then_the_others_in_order():
+    attention = np.full((2, 6, 3), -1, np.int16)
+    attention[0, :, 0] = [1, 1, 2, 2, 2, -1]  # most: 2 (3 steps), then 1
+    attention[0, :, 1] = [-1, 0, 0, -1, -1, -1]
+    attention[1, :, 2] = [0, 1, 0, 1, -1, 1]  # 1 (3 steps) before 0 (2 steps)
+    np.testing.assert_array_equal(attended_count(attention), [[2, 1, 0], [0, 0, 2]])
+    slots = attended_agents(attention, 2)
+    np.testing.assert_array_equal(slots[0], [[2, 0, -1], [-1, -1, 1]])
+    np.testing.assert_array_equal(slots[1], [[1, -1, -1], [-1, -1, 0]])
+
+
+def test_moving_labels_give_every_named_agent_a_slot_and_the_control_draws_distractors():
+    """Agent 0's future needs both agents its label names in turn: the labelled ridge reads
+    both (two slots) and explains it; a random role-2 agent (the distractor) explains nothing,
+    and the control never draws another role."""
+    rng = np.random.default_rng(3)
+    train, train_attention, train_roles = decided_by_two_in_turn(rng, 120)
+    test, test_attention, test_roles = decided_by_two_in_turn(rng, 30)
+
+    def error(config):
+        model = fitted(train, train_roles, config, train_attention)
+        assert model.label_slots == 2
+        pred = predict(model, test, test_roles, test_attention)
+        return np.linalg.norm(pred[:, :, 0] - test[:, OBSERVED:, 0, :2], axis=-1).mean()
+
+    assert error(RidgeConfig(history_steps=4, neighbours="labelled")) < 0.01
+    control = RidgeConfig(history_steps=4, neighbours="random", random_role=2)
+    assert error(control) > 0.3
+    model = fitted(train, train_roles, control, train_attention)
+    valid = np.ones(test.shape[:3], bool)
+    drawn = model._neighbours(test[:, OBSERVED - 1, :, :2], valid[:, 0], test_attention, test_roles)
+    assert len(drawn) == 2
+    assert set(np.unique(drawn[0][:, :3])) == {3}  # the distractor, for agents 0-2
+    assert (drawn[1][:, :3] == -1).all()  # no second distractor to draw
+    with pytest.raises(ValueError, match="random_role needs the agents' roles"):
+        model._neighbours(test[:, OBSERVED - 1, :, :2], valid[:, 0], test_attention)
 
 
 def test_shuffled_neighbour_is_the_labelled_car_of_another_scene():
@@ -374,6 +434,8 @@ def test_interaction_gain_finds_the_deciding_car_and_the_tool_prints_it(tmp_path
     (banded,) = interaction_gain(path, penalty="banded")
     assert banded.own == row.own and banded.gain > 0.95
     (null,) = interaction_gain(path, control="shuffled")  # the label of another scene
+    with pytest.raises(ValueError, match="no agent role named distractor"):
+        interaction_gain(path, control="distractor")
     assert (null.own, null.labelled) == (row.own, row.labelled) and abs(null.control) < 0.2
     with pytest.raises(ValueError, match="control must be one of"):
         interaction_gain(path, control="psychic")

@@ -29,20 +29,21 @@ def test_lane_curvature_is_signed_inverse_radius_on_arcs_and_zero_elsewhere() ->
     np.testing.assert_allclose(lane.curvature_at(s), [0.0, 0.0, 1 / 8, -1 / 5, 0.0])
 
 
-def test_a_car_is_off_a_layout_when_a_corner_leaves_every_lane() -> None:
+def test_a_car_is_off_a_layout_when_its_centre_leaves_every_lane() -> None:
     layout = Intersection(arm_length_m=30.0).layout
     lane = layout.lanes["in_south"]  # x = +1.75, heading north, from y = -37.5 to -7.5
     state = np.array(
         [
             [1.75, -20.0, np.pi / 2, 5.0],  # on its lane's centre
-            [2.7, -30.0, np.pi / 2, 5.0],  # a corner 0.1 m past the lane's edge at x = 3.5
+            [3.4, -30.0, np.pi / 2, 5.0],  # half its body past the lane's edge at x = 3.5
+            [3.6, -40.0, np.pi / 2, 5.0],  # its centre 0.1 m past that edge
             [20.0, -20.0, 0.0, 5.0],  # on the grass between two arms
         ]
     )
     assert lane.contains(state[0, :2]) and not lane.contains(np.array([3.6, -20.0]))
     world = BatchedWorld(layout, state[None])
     collided, off_road = world.incidents()
-    assert off_road[0].tolist() == [False, True, True]
+    assert off_road[0].tolist() == [False, False, True, True]
     assert not collided.any()
     frame = render_rgb(World.of(world), 200, 200)  # the layout fitted in a square frame
     assert frame.shape == (200, 200, 3) and len(np.unique(frame.reshape(-1, 3), axis=0)) >= 3

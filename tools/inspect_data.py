@@ -54,8 +54,7 @@ def main(argv: list[str] | None = None) -> None:
         choices=CONTROLS,
         default=None,
         help="with --interaction-gain: the control's car, a random other car (default), a random "
-        "car it never attends to (unlabelled) or the labelled car of another scene (shuffled, a "
-        "null control)",
+        "distractor (distractor) or the labelled car of another scene (shuffled, a null control)",
     )
     args = parser.parse_args(argv)
     for option in ("gain_groups", "gain_penalty", "gain_control"):
