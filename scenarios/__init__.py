@@ -1,5 +1,6 @@
-"""Double Merge and Halting Car: synthetic multi-agent driving scenarios on carlo_lite, as
-versioned families (Gymnasium's naming: `double_merge_v1`, `halting_car_v3`).
+"""Double Merge, Halting Car (straight roads), Unprotected Left Turn and Roundabout Entry
+(junctions): synthetic multi-agent driving scenarios on carlo_lite, as versioned families
+(Gymnasium's naming: `double_merge_v1`, `halting_car_v3`, `left_turn_v0`).
 
     import scenarios
     env = scenarios.halting_car_v3.parallel_env()          # PettingZoo, one scene
@@ -31,6 +32,8 @@ from scenarios.halting_car_reactive import (
     ReactiveHaltingCarConfig,
     ReactiveHaltingCarPlan,
 )
+from scenarios.junction import JunctionConfig, JunctionPlan, JunctionScenario
+from scenarios.left_turn import LeftTurn, LeftTurnConfig, LeftTurnPlan
 from scenarios.registry import (
     FAMILIES,
     VERSIONS,
@@ -43,6 +46,11 @@ from scenarios.registry import (
     version_names,
 )
 from scenarios.rollout import Episode, advance, rollout, rollout_batch
+from scenarios.roundabout_entry import (
+    RoundaboutEntry,
+    RoundaboutEntryConfig,
+    RoundaboutEntryPlan,
+)
 from scenarios.versioning import ScenarioVersion
 
 ENV_MODULES = install(globals())  # version name -> scenarios.<name>
@@ -71,13 +79,22 @@ __all__ = [
     "HaltingCar",
     "HaltingCarConfig",
     "HaltingCarPlan",
+    "JunctionConfig",
+    "JunctionPlan",
+    "JunctionScenario",
     "LatestVersionNotice",
+    "LeftTurn",
+    "LeftTurnConfig",
+    "LeftTurnPlan",
     "ReactiveDoubleMerge",
     "ReactiveDoubleMergeConfig",
     "ReactiveDoubleMergePlan",
     "ReactiveHaltingCar",
     "ReactiveHaltingCarConfig",
     "ReactiveHaltingCarPlan",
+    "RoundaboutEntry",
+    "RoundaboutEntryConfig",
+    "RoundaboutEntryPlan",
     "Scenario",
     "ScenarioConfig",
     "ScenarioPlan",
