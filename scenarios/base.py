@@ -214,6 +214,11 @@ class Scenario(ABC):
         """Whom each car attends to and when the interaction period is, for "Infos"."""
 
     @classmethod
+    def manual_distractors(cls, config: ScenarioConfig) -> str:
+        """How the distractors drive, completing "`car_2` ... `car_21` are distractors"."""
+        return f"driving straight at constant speed on lanes 0 and {config.num_lanes - 1}."
+
+    @classmethod
     def manual_split_note(cls, config: ScenarioConfig) -> str:
         """Why the suggested observed / predicted split is where it is (may be empty)."""
         return ""

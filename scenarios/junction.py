@@ -30,7 +30,7 @@ from typing import ClassVar
 import numpy as np
 
 from carlo_lite import BatchedWorld, Lane, RoadLayout, wrap_angle
-from scenarios.base import Range, Scenario, ScenarioConfig, ScenarioPlan, uniform
+from scenarios.base import Range, Scenario, ScenarioConfig, ScenarioPlan, span, uniform
 from scenarios.controllers import IDMParams, lateral_steering
 from scenarios.expert import Expert, scalar_idm_accel
 
@@ -160,6 +160,15 @@ class JunctionScenario(Scenario):
     def build_layout(self) -> tuple[RoadLayout, tuple[Lane, ...]]:
         """The road layout and the routes (subclasses)."""
         raise NotImplementedError
+
+    @classmethod
+    def manual_distractors(cls, config: JunctionConfig) -> str:
+        return (
+            f"in columns of {config.platoon_size} on lanes that no main car uses, the cars "
+            f"of a column sharing one speed profile (cruising at "
+            f"{span(config.distractor_speed_mps, 'm/s')}, then braking to a slower speed or to "
+            "a stop at its line, and resuming); none of them reacts to another car."
+        )
 
     def position_bounds(self) -> tuple[float, float, float, float]:
         """(x_min, y_min, x_max, y_max) [m] of the road surface."""

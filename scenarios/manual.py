@@ -90,14 +90,7 @@ def _distractors(scenario: Scenario) -> str:
     if not indices:
         return "There are no distractors."
     cars = f"`car_{indices[0]}` ... `car_{indices[-1]}` are distractors"
-    if isinstance(scenario, JunctionScenario):
-        return (
-            f"{cars}: columns of {config.platoon_size} on lanes that no main car uses, the cars "
-            f"of a column sharing one speed profile (cruising at "
-            f"{span(config.distractor_speed_mps, 'm/s')}, then braking to a slower speed or to "
-            "a stop at its line, and resuming); none of them reacts to another car."
-        )
-    return f"{cars} driving straight at constant speed on lanes 0 and {config.num_lanes - 1}."
+    return f"{cars} {type(scenario).manual_distractors(config)}"
 
 
 def _position_rows(scenario: Scenario) -> list[tuple[int, str]]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 from scenarios.double_merge import DoubleMerge
 from scenarios.double_merge_reactive import ReactiveDoubleMerge
 from scenarios.halting_car import HaltingCar
+from scenarios.halting_car_braking import BrakingDistractorsHaltingCar
 from scenarios.halting_car_reactive import ReactiveHaltingCar
 from scenarios.left_turn import LeftTurn
 from scenarios.roundabout_entry import RoundaboutEntry
@@ -69,6 +70,13 @@ HALTING_CAR = family_versions(
         why="The leader's observed braking then reads the same in every `stop` scene, so one "
         "linear reading of its history tells the case; the version to use for a new Halting "
         "Car study.",
+    ),
+    Version(
+        code=BrakingDistractorsHaltingCar,
+        changes="v3, with each outer lane's distractors braking together (to a lower speed or "
+        "a stop) and resuming at random moments, never reacting to any car",
+        why="With constant-speed distractors the mean over all cars is a scaled copy of the "
+        "leader's braking, so averaging does the attention's job; here it cannot.",
     ),
 )
 
