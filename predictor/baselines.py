@@ -42,6 +42,7 @@ has one (`ridge_states` puts it in channel 2), else from its last observed displ
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -240,6 +241,10 @@ class RidgeBaseline:
     # neighbour slots of "labelled", "random" and "shuffled": the most distinct agents any agent
     # of the training data attends to (set by `fit`)
     label_slots: int = 1
+    # per feature, the training mean over the rows where that neighbour slot was present: what an
+    # absent neighbour's features read as (its presence flag stays 0), so that a slot that was
+    # always filled in training does not extrapolate wildly when empty (set by `fit`)
+    absent_fill: np.ndarray | None = None
 
     def fit(
         self,
@@ -260,7 +265,12 @@ class RidgeBaseline:
         self._check(states, num_observed)
         self.dt, self.num_observed = float(dt), int(num_observed)
         self.label_slots = max(1, attended_count(attention).max(initial=0))
+        self.absent_fill = None
         features, usable, frames = self.features(states, valid, attention, roles)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: no slot filled
+            self.absent_fill = np.nan_to_num(np.nanmean(features[usable], axis=0))
+        features = self._fill_absent(features)
         target = self._target(states[..., :2], valid, frames)  # (n, N, T_pred * 2)
         roles = self.group_keys(states, attention, roles, case)
         complete = usable & valid[:, num_observed:].all(axis=1)  # (n, N)
@@ -316,6 +326,7 @@ class RidgeBaseline:
         positions = states[..., :2]
         pred = constant_velocity(positions, valid, self.num_observed).astype(np.float64)
         features, usable, frames = self.features(states, valid, attention, roles)
+        features = self._fill_absent(features)
         roles = self.group_keys(states, attention, roles, case)
         local = np.zeros(usable.shape + (pred.shape[1], 2))  # (n, N, T_pred, 2) offsets
         for role, model in self.models.items():
@@ -433,10 +444,20 @@ class RidgeBaseline:
             slots.append(np.where(finite, order[..., k], -1))
         return slots
 
+    def _fill_absent(self, features: np.ndarray) -> np.ndarray:
+        """`features` with an absent neighbour's values (NaN) read as `absent_fill`."""
+        missing = np.isnan(features)
+        if not missing.any():
+            return features
+        fill = np.broadcast_to(self.absent_fill, features.shape)
+        return np.where(missing, fill, features)
+
     def _neighbour_features(
         self, track: np.ndarray, present: np.ndarray, other: np.ndarray, frames: AgentFrames
     ) -> np.ndarray:
-        """(n, N, 2H + 3): relative position at T_obs-1, velocities, presence flag."""
+        """(n, N, 2H + 3): relative position at T_obs-1, velocities, presence flag; an absent
+        neighbour's values are NaN (`_fill_absent` reads them as the training mean) and its
+        presence flag 0."""
         n, num_agents = other.shape
         index = np.clip(other, 0, num_agents - 1)
         scenes = np.arange(n)[:, None]
@@ -448,7 +469,9 @@ class RidgeBaseline:
             [local[:, :, -1], velocity.reshape(n, num_agents, -1), np.ones((n, num_agents, 1))],
             axis=-1,
         )
-        return np.where(here[..., None], feats, 0.0)
+        feats = np.where(here[..., None], feats, np.nan)
+        feats[..., -1] = here
+        return feats
 
     def _target(self, positions: np.ndarray, valid: np.ndarray, frames: AgentFrames) -> np.ndarray:
         """(n, N, T_pred * 2): the future offset from constant velocity, in the agent's frame."""

@@ -22,7 +22,6 @@ car's route (0: its centre-line).
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import ClassVar
@@ -42,7 +41,7 @@ class JunctionConfig(ScenarioConfig):
     """Settings shared by the junction scenarios (SI units; ranges are uniform draws).
 
     The straight-road fields of `ScenarioConfig` (num_lanes, road_length_m) are not used;
-    `lane_width_m` is the width of every lane of the layout.
+    `lane_width_m` is the width of the intersection's lanes (the roundabout has its own).
     """
 
     record_every: int = 3  # 0.3 s per recorded (control) step
@@ -52,7 +51,7 @@ class JunctionConfig(ScenarioConfig):
     platoon_size: int = 3  # distractors per column
     distractor_speed_mps: Range = (5.0, 10.0)  # one cruising speed per column
     distractor_gap_m: Range = (9.0, 16.0)  # centre-to-centre gap inside a column
-    platoon_brake_start_s: Range = (0.5, 9.0)  # when a driving-away column brakes
+    platoon_brake_start_s: Range = (0.5, 9.0)  # when a column starts braking
     platoon_decel_mps2: Range = (1.5, 4.0)
     platoon_slow_ratio: Range = (0.0, 0.6)  # the speed it brakes to / its cruise
     platoon_hold_s: Range = (0.5, 3.0)  # time at the low speed
@@ -375,7 +374,3 @@ class JunctionExpert(Expert):
         """(B,) the per-car flat `values` of car `car` in every scene."""
         return values.reshape(self.num_scenes, self.num_cars)[:, car]
 
-
-def replace_plan(plan: JunctionPlan, **changes) -> JunctionPlan:
-    """`plan` with some fields changed."""
-    return dataclasses.replace(plan, **changes)
