@@ -98,7 +98,7 @@ VALID = dict(scenario="halting_car_v0", major_case="stop", minor_case="go")
 @pytest.mark.parametrize(
     "changes, field",
     [
-        (dict(scenario="roundabout"), "scenario"),
+        (dict(scenario="hovercraft"), "scenario"),
         (dict(major_case="major"), "major_case"),
         (dict(minor_case="left"), "minor_case"),
         (dict(minor_case="stop"), "minor_case"),

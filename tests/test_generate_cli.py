@@ -87,8 +87,8 @@ def test_a_family_name_means_the_latest_version_and_says_so(tmp_path):
     "argv, message",
     [
         (
-            ["--scenario", "roundabout"],
-            "unknown scenario 'roundabout'; choose from double_merge_v0",
+            ["--scenario", "hovercraft"],
+            "unknown scenario 'hovercraft'; choose from double_merge_v0",
         ),
         (["--scenario", "halting_car_v0", "--minor-ratio", "-0.1"], "--minor-ratio"),
         (
