@@ -557,5 +557,5 @@ def test_junction_manual_speaks_of_world_coordinates_and_routes() -> None:
     manual = " ".join(left_turn_v0.raw_env.__doc__.split())
     assert "ego x [m] (world frame of the layout)" in manual
     assert "along the road" not in manual and "lanes 0 and" not in manual
-    assert "`car_4` ... `car_15` are distractors: columns of 3" in manual
+    assert "`car_4` ... `car_15` are distractors in columns of 3" in manual
     assert "cos(heading - route heading)" in manual
