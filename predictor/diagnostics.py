@@ -22,7 +22,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from predictor.baselines import scene_labels
+from predictor.label_slots import scene_labels
 from predictor.metrics import focal_slots, focal_view, prediction_mask
 from predictor.model import SmoothAttentionPredictor
 from trajectory_data.torch_dataset import Batch

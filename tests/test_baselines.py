@@ -19,13 +19,12 @@ from predictor.baselines import (
     RIDGE_BASELINES,
     RidgeBaseline,
     RidgeConfig,
-    attended_agents,
-    attended_count,
     constant_velocity,
     relation_groups,
     scene_derangement,
 )
 from predictor.interaction_gain import interaction_gain
+from predictor.label_slots import attended_agents, attended_count
 from trajectory_data.format import DatasetMeta, TrajectorySet, write_dataset
 
 DT = 0.2
