@@ -7,7 +7,7 @@ of its scene), the test ADE of ridge regressions fitted on the training split wi
 
 - `own`: the agent's own history only,
 - `labelled`: plus the history of the agent its label names (oracle; where the label moves from
-  car to car during a scene, of every agent it names, `predictor.baselines.attended_agents`),
+  car to car during a scene, of every agent it names, `predictor.label_slots.attended_agents`),
 - `random`: plus the history of as many random other agents (the control; with
   `control="distractor"` random agents of the role "distractor", with `control="shuffled"` the
   labelled agents' histories from another scene, a null control that carries nothing about the

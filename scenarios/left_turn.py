@@ -8,11 +8,12 @@ columns (`scenarios.junction`): cross traffic on the west and east approaches br
 at its line (a red light), and columns driving away on the east and north exits brake and
 resume at random moments; none of them meets a main car's path.
 
-Expert (gap acceptance, `scenarios.junction`): the turning car approaches its stop line and, at
-every control step until it commits, reads the first oncoming car that has not yet left the
-conflict zone (where the two routes cross, `conflict_clear_m` either side): it goes if that car
-reaches the zone later than the turning car can leave it (accelerating at `go_accel_mps2`) plus
-`gap_margin_s`; otherwise it brakes to stop at its line (IDM towards the line) and waits. Once
+Expert (gap acceptance, `scenarios.junction`): the turning car approaches its stop line reading
+the first oncoming car that has not yet left the conflict zone (where the two routes cross,
+`conflict_clear_m` either side). Once its front is within `decision_distance_m` of the line, at
+every control step until it commits, it goes if that car reaches the zone later than the turning
+car can leave it (accelerating at `go_accel_mps2`) plus `gap_margin_s`; otherwise it brakes to
+stop at its line (IDM towards the line) and waits. Once
 it goes it accelerates to its turning speed and never reconsiders. The oncoming cars keep their
 speed (the turning car only goes when it is safe); distractors follow their profiles.
 
