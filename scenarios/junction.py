@@ -373,4 +373,3 @@ class JunctionExpert(Expert):
     def at(self, values: np.ndarray, car: int) -> np.ndarray:
         """(B,) the per-car flat `values` of car `car` in every scene."""
         return values.reshape(self.num_scenes, self.num_cars)[:, car]
-
