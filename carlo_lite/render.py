@@ -65,6 +65,18 @@ def layout_view(layout: RoadLayout, width_px: int, height_px: int) -> View:
     return View(center, metres_per_px, width_px, height_px)
 
 
+def _chosen(
+    fitted: View, center_xy: tuple[float, float] | None, metres_per_px: float | None
+) -> View:
+    """`fitted` with the caller's centre and scale where given."""
+    return View(
+        center_xy if center_xy is not None else fitted.center_xy,
+        metres_per_px if metres_per_px is not None else fitted.metres_per_px,
+        fitted.width_px,
+        fitted.height_px,
+    )
+
+
 def _fill_band(
     frame: np.ndarray, ys: np.ndarray, low: float, high: float, color, mask_x=None
 ) -> None:
@@ -132,15 +144,8 @@ def render_rgb(
     """
     if width_px < 1 or height_px < 1:
         raise ValueError("frame size must be at least 1 x 1 pixel")
-    view = default_view(world, width_px, height_px)
-    view = View(
-        center_xy if center_xy is not None else view.center_xy,
-        metres_per_px if metres_per_px is not None else view.metres_per_px,
-        width_px,
-        height_px,
-    )
-    frame = np.empty((height_px, width_px, 3), dtype=np.uint8)
-    frame[:] = GRASS_COLOR
+    view = _chosen(default_view(world, width_px, height_px), center_xy, metres_per_px)
+    frame = np.full((height_px, width_px, 3), GRASS_COLOR, dtype=np.uint8)
     _draw_road(frame, world, view)
     _draw_cars(frame, world, view)
     return frame
@@ -173,15 +178,8 @@ def render_layout(
     """
     if width_px < 1 or height_px < 1:
         raise ValueError("frame size must be at least 1 x 1 pixel")
-    fitted = layout_view(layout, width_px, height_px)
-    view = View(
-        center_xy if center_xy is not None else fitted.center_xy,
-        metres_per_px if metres_per_px is not None else fitted.metres_per_px,
-        width_px,
-        height_px,
-    )
-    frame = np.empty((height_px, width_px, 3), dtype=np.uint8)
-    frame[:] = GRASS_COLOR
+    view = _chosen(layout_view(layout, width_px, height_px), center_xy, metres_per_px)
+    frame = np.full((height_px, width_px, 3), GRASS_COLOR, dtype=np.uint8)
     _draw_layout(frame, layout, view)
     if world is not None:
         _draw_cars(frame, world, view)
