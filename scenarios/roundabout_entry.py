@@ -37,6 +37,7 @@ import numpy as np
 
 from carlo_lite import BatchedWorld, Lane, RoadLayout, Roundabout
 from scenarios.base import BROWN, GREEN, NO_ATTENTION, Range, span, uniform
+from scenarios.expert import scalar_idm_accel
 from scenarios.junction import (
     JunctionConfig,
     JunctionExpert,
@@ -73,9 +74,19 @@ class RoundaboutEntryConfig(JunctionConfig):
     circulating_speed_mps: Range = (6.0, 9.0)
     yield_arrival_s: Range = (3.5, 6.5)  # case yield: brown's arrival at the merge zone
     go_arrival_margin_s: Range = (2.0, 4.0)  # case go: after green could pass + margin
+    # what brown's arrival is timed from: "start" (the episode's start; green's passage
+    # estimated as if it drove at its approach speed from there, v0) or "decision" (the moment
+    # green reaches its decision distance, found by stepping its approach to the line as its
+    # expert drives it; `yield_arrival_s` then counts from that moment, v1)
+    arrival_timing: str = "start"
     green_exit_arms: tuple[int, ...] = (2,)  # the green car's exit is drawn from these (of 1, 2)
     brown_exit_arms: tuple[int, ...] = (2,)
     follow_range_m: float = 40.0  # a car ahead on one's route within this is followed
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.arrival_timing not in ("start", "decision"):
+            raise ValueError("arrival_timing must be 'start' or 'decision'")
 
 
 @dataclass(frozen=True, eq=False)
@@ -250,21 +261,24 @@ class RoundaboutEntry(JunctionScenario):
         green_s = (
             self.yield_line_s - uniform(rng, config.entry_start_m) - 0.5 * (config.car_length_m)
         )
-        leave = float(
+        decided_s, decided_speed, decided_at = green_s, approach, 0.0
+        if config.arrival_timing == "decision":
+            decided_s, decided_speed, decided_at = self.approach_to_decision(green_s, approach)
+        leave = decided_at + float(
             time_to_cover(
                 np.array(
                     self.green_merge_s
                     + config.conflict_clear_m
                     + 0.5 * config.car_length_m
-                    - green_s
+                    - decided_s
                 ),
-                np.array(approach),
+                np.array(decided_speed),
                 config.go_accel_mps2,
                 np.array(enter_speed),
             )
         )
         if yields:
-            arrival = uniform(rng, config.yield_arrival_s)
+            arrival = decided_at + uniform(rng, config.yield_arrival_s)
         else:
             arrival = leave + config.gap_margin_s + uniform(rng, config.go_arrival_margin_s)
         merge = self.brown_merge_s[brown_exit]
@@ -286,6 +300,34 @@ class RoundaboutEntry(JunctionScenario):
             circulating_speed_mps=circulating,
             yields=yields,
         )
+
+    def approach_to_decision(self, centre_s: float, speed: float) -> tuple[float, float, float]:
+        """(s [m], speed [m/s], time [s]) of the green car at the first control step where its
+        front is within `decision_distance_m` of its yield line: its approach (IDM towards the
+        line at the approach speed `speed`, each control held one period) stepped along its
+        route from its centre's arc length `centre_s`, as its expert drives it until it
+        decides. The bicycle model's lag makes this an estimate to within a control step."""
+        config: RoundaboutEntryConfig = self.config
+        period = self.control_period_s
+        half = 0.5 * config.car_length_m
+        desired = np.array([speed])
+        s, time, current = centre_s, 0.0, speed
+        while s + half < self.yield_line_s - config.decision_distance_m:
+            if time >= config.num_steps * period:
+                break  # stopped short of its decision distance (not with valid settings)
+            to_line = self.yield_line_s - s - half
+            accel = scalar_idm_accel(
+                np.array([current]),
+                desired,
+                np.array([to_line + 0.1]),
+                np.array([current]),
+                config.idm.time_headway_s,
+                config.idm,
+            )
+            new_speed = max(current + float(accel[0]) * period, 0.0)
+            s += 0.5 * (current + new_speed) * period
+            current, time = new_speed, time + period
+        return s, current, time
 
     # --- the manual --------------------------------------------------------------------------
     @classmethod

@@ -186,11 +186,15 @@ def _runs(labels: np.ndarray) -> list[tuple[int, int]]:
 
 
 # --- Roundabout Entry ----------------------------------------------------------------------------
+ROUNDABOUTS = [name for name, _ in JUNCTION_CASES if name.startswith("roundabout_entry")]
+
+
 @pytest.mark.parametrize("case", RoundaboutEntry.case_names)
-def test_roundabout_entering_car_yields_or_goes_as_its_case_says(case: str) -> None:
-    sc = scenario("roundabout_entry_v0")
+@pytest.mark.parametrize("name", sorted(set(ROUNDABOUTS)))
+def test_roundabout_entering_car_yields_or_goes_as_its_case_says(name: str, case: str) -> None:
+    sc = scenario(name)
     brown_followed = 0
-    for run in episodes("roundabout_entry_v0", case):
+    for run in episodes(name, case):
         plan = sc.plan(run.seed, case)
         green_s = _route_s(sc, plan.route[0], run.states[:, 0, :2])
         brown_s = _route_s(sc, plan.route[1], run.states[:, 1, :2])
@@ -203,6 +207,22 @@ def test_roundabout_entering_car_yields_or_goes_as_its_case_says(case: str) -> N
     # in `go` brown closes up behind green and follows it; in `yield` it never attends to it
     assert brown_followed >= (190 if case == "go" else 0)
     assert brown_followed == 0 or case == "go"
+
+
+def test_roundabout_v1_green_decides_after_the_observed_window_when_its_approach_says() -> None:
+    """v1 times the circulating car from the entering car's decision, which `sample_plan`
+    finds by stepping its approach: in every `go` scene the car commits (stops reading the
+    circulating car) at that control step or the next, and never inside the observed window."""
+    sc = scenario("roundabout_entry_v1")
+    period = sc.control_period_s
+    for run in episodes("roundabout_entry_v1", "go"):
+        plan = sc.plan(run.seed, "go")
+        route = sc.routes[plan.route[0]]
+        centre_s = float(route.local_coordinates(plan.initial_state[0, :2])[0])
+        _, _, decided_at = sc.approach_to_decision(centre_s, plan.approach_speed_mps)
+        committed = int(np.argmax(run.attention[:, 0] != 1))  # the first step it reads no one
+        assert committed >= sc.config.num_observed
+        assert 0 <= committed - round(decided_at / period) <= 1
 
 
 def test_roundabout_green_waits_longer_for_a_slower_circulating_car() -> None:
