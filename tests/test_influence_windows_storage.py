@@ -17,7 +17,7 @@ from pipeline.generation import GenerateConfig, generate_dataset, plan, slot_win
 from scenarios.counterfactual import windowed_influence
 from trajectory_data.format import INFLUENCE, INFLUENCE_WINDOWS, FormatError, write_dataset
 from trajectory_data.reader import read_dataset, read_meta
-from trajectory_data.window_summary import influence_window_rows
+from trajectory_data.window_summary import influence_moves, influence_window_rows
 
 SMALL = {"num_major": 3, "num_minor": 1, "num_test": 1}
 
@@ -181,6 +181,20 @@ def test_window_summary_by_hand():
     assert second["others"] == pytest.approx(0.3 / 4)
     # agent 0's top agent and label move from 1 to 2, agent 1's stay 0; scene 1 has none
     assert second["top_changed"] == 0.5 and second["label_changed"] == 0.5
+    # every top agent is one the label names; agent 0's label names 2 agents and its top moves
+    assert first["top_labelled"] == 1.0 and second["top_labelled"] == 1.0
+    moves = influence_moves(meta, {"train": data})
+    assert moves == {"moving": 1, "top_moves": 1.0, "top_moves_fixed": 0.0}
+    # agent 1's top becomes agent 3, which it does not attend to; a window without any
+    # influence on agent 0 leaves its top agents {1} and breaks no count
+    matrices[0, 1, 1] = [1.0, 0, 0, 2.0]
+    matrices[0, 1, 0] = 0.0
+    data = dataclasses.replace(data, influence_windows=matrices)
+    first, second = influence_window_rows(meta, {"train": data})
+    assert second["top_labelled"] == 0.0  # agent 1 only: agent 0 has no top agent
+    assert second["top_changed"] == 1.0
+    moves = influence_moves(meta, {"train": data})
+    assert moves == {"moving": 1, "top_moves": 0.0, "top_moves_fixed": 1.0}
 
 
 def test_cli_writes_windows_and_inspect_summarises_them(tmp_path):

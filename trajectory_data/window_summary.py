@@ -10,7 +10,15 @@ Definitions, per window w (the steps t_w .. t_w + L - 1, `window_steps`) over al
   `share_above`: share of labelled pairs whose influence exceeds every other agent's on i;
 - `top`: per scene and focal agent i, the agent with the largest influence on i in window w
   (none where no agent has any); `top_changed`: share of focal agents with a top agent in w - 1
-  and in w whose top agent differs; `label_changed` the same for i's most frequent label.
+  and in w whose top agent differs; `label_changed` the same for i's most frequent label;
+  `top_labelled`: share of focal agents with a top agent and a label in w whose top agent is
+  one their label names in w.
+
+Over the whole predicted span (`influence_moves`): the focal agents whose label names two or
+more agents, and how many of them have two or more distinct top agents over the windows. A
+window in which no agent has any influence (a car waiting for two others in turn: removing the
+first changes nothing while the second still blocks it) breaks a run, so consecutive windows
+alone (`top_changed`) understate how often the top agent moves.
 """
 
 from __future__ import annotations
@@ -38,15 +46,17 @@ def influence_window_rows(meta: DatasetMeta, splits: dict[str, TrajectorySet]) -
     previous_top = previous_label = None
     for w, (first, stop) in enumerate(window_steps(meta)):
         labelled, others, above = [], [], []
-        tops, modes = [], []
+        tops, modes, named = [], [], []
         for data in splits.values():
             matrix = data.influence_windows[:, w]  # (n, N, N) [k, i, j]
             tops.append(_top_agents(matrix))
             modes.append(_label_modes(data.attention[:, first:stop]))
+            named.append(_top_is_labelled(tops[-1], data.attention[:, first:stop]))
             if labels:
                 _labelled_pairs(matrix, data.attention[:, first:stop], labelled, others, above)
         top, mode = np.concatenate(tops), np.concatenate(modes)
         focal = np.concatenate([data.focal for data in splits.values()])
+        counted = focal & (top >= 0) & (mode >= 0)
         rows.append(
             {
                 "window": w,
@@ -57,6 +67,9 @@ def influence_window_rows(meta: DatasetMeta, splits: dict[str, TrajectorySet]) -
                 "share_above": float(np.mean(above)) if above else None,
                 "top_changed": _changed(previous_top, top, focal),
                 "label_changed": _changed(previous_label, mode, focal) if labels else None,
+                "top_labelled": (
+                    float(np.concatenate(named)[counted].mean()) if counted.any() else None
+                ),
             }
         )
         previous_top, previous_label = top, mode
@@ -78,6 +91,46 @@ def _labelled_pairs(
         for j in chosen:
             labelled.append(float(row[j]))
             above.append(bool(row[j] > strongest))
+
+
+def influence_moves(meta: DatasetMeta, splits: dict[str, TrajectorySet]) -> dict:
+    """Over the predicted span, per focal agent (module docstring): `moving` (focal agents whose
+    label names two or more agents at the predicted steps), `top_moves` (of those, the share
+    with two or more distinct top agents over the windows; None where there are none) and
+    `top_moves_fixed` (the same share among focal agents whose label names exactly one agent).
+    Requires recorded influence_windows and attention labels."""
+    if not (meta.has(INFLUENCE_WINDOWS) and meta.has("attention")):
+        raise ValueError("the window summary needs recorded influence_windows and attention")
+    label_counts, top_counts = [], []
+    for data in splits.values():
+        tops = np.stack(
+            [_top_agents(data.influence_windows[:, w]) for w in range(len(window_steps(meta)))],
+            axis=1,
+        )  # (n, W, N)
+        focal = data.focal
+        label_counts.append(_distinct(data.attention[:, meta.num_observed :])[focal])
+        top_counts.append(_distinct(tops)[focal])
+    labels, tops = np.concatenate(label_counts), np.concatenate(top_counts)
+    moving, fixed = labels >= 2, labels == 1
+    return {
+        "moving": int(moving.sum()),
+        "top_moves": float((tops[moving] >= 2).mean()) if moving.any() else None,
+        "top_moves_fixed": float((tops[fixed] >= 2).mean()) if fixed.any() else None,
+    }
+
+
+def _distinct(values: np.ndarray) -> np.ndarray:
+    """(n, N) number of distinct values >= 0 of each agent over axis 1 of (n, t, N)."""
+    agents = values.shape[-1]
+    seen = np.zeros((values.shape[0], agents, agents), dtype=bool)
+    scene, _, agent = np.nonzero(values >= 0)
+    seen[scene, agent, values[values >= 0]] = True
+    return seen.sum(axis=2)
+
+
+def _top_is_labelled(top: np.ndarray, attention: np.ndarray) -> np.ndarray:
+    """(n, N) whether each agent's top agent (n, N) is one its labels (n, t, N) name."""
+    return (attention == top[:, None, :]).any(axis=1) & (top >= 0)
 
 
 def _top_agents(matrix: np.ndarray) -> np.ndarray:
@@ -119,7 +172,7 @@ def influence_window_lines(meta: DatasetMeta, splits: dict[str, TrajectorySet]) 
         f"influence per time window of {meta.influence_window_steps} steps (ADE over the window "
         "when an agent is removed from its first step) [m]:",
         f"{'window':<8}{'steps':<10}{'pairs':>7}{'labelled':>10}{'others':>9}"
-        f"{'labelled > all':>16}{'top changed':>13}{'label changed':>15}",
+        f"{'labelled > all':>16}{'top changed':>13}{'label changed':>15}{'top labelled':>14}",
     ]
     for row in influence_window_rows(meta, splits):
         first, stop = row["steps"]
@@ -127,10 +180,21 @@ def influence_window_lines(meta: DatasetMeta, splits: dict[str, TrajectorySet]) 
             f"{row['window']:<8}{f'{first}-{stop - 1}':<10}{row['pairs']:>7}"
             f"{_text(row['labelled'], 10, '.3f')}{_text(row['others'], 9, '.3f')}"
             f"{_text(row['share_above'], 16, '.1%')}{_text(row['top_changed'], 13, '.1%')}"
-            f"{_text(row['label_changed'], 15, '.1%')}"
+            f"{_text(row['label_changed'], 15, '.1%')}{_text(row['top_labelled'], 14, '.1%')}"
+        )
+    if meta.has("attention"):
+        moves = influence_moves(meta, splits)
+        lines.append(
+            f"focal agents whose label names 2+ agents: {moves['moving']}; of them with 2+ "
+            f"top agents over the windows: {_percent(moves['top_moves'])} (label naming one "
+            f"agent: {_percent(moves['top_moves_fixed'])})"
         )
     return lines
 
 
 def _text(value: float | None, width: int, spec: str) -> str:
     return f"{'-':>{width}}" if value is None else f"{value:>{width}{spec}}"
+
+
+def _percent(value: float | None) -> str:
+    return "-" if value is None else f"{value:.1%}"
