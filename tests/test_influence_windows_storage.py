@@ -185,6 +185,9 @@ def test_window_summary_by_hand():
     assert first["top_labelled"] == 1.0 and second["top_labelled"] == 1.0
     moves = influence_moves(meta, {"train": data})
     assert moves == {"moving": 1, "top_moves": 1.0, "top_moves_fixed": 0.0}
+    other_case = int(1 - data.case[0])
+    assert influence_moves(meta, {"train": data}, case=int(data.case[0])) == moves
+    assert influence_moves(meta, {"train": data}, case=other_case)["moving"] == 0
     # agent 1's top becomes agent 3, which it does not attend to; a window without any
     # influence on agent 0 leaves its top agents {1} and breaks no count
     matrices[0, 1, 1] = [1.0, 0, 0, 2.0]
@@ -208,6 +211,7 @@ def test_cli_writes_windows_and_inspect_summarises_them(tmp_path):
     assert shown.returncode == 0, shown.stderr
     assert "influence per time window of 16 steps" in shown.stdout
     assert "\n2       44-59 " in shown.stdout  # the third window's row
+    assert "moving labels (focal agents whose label names 2+ agents" in shown.stdout
     for extra, message in (
         (("--influence-window-steps", "-2"), "--influence-window-steps must be at least 1"),
         (("--influence-window-steps", "x"), "invalid int"),

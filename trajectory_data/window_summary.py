@@ -93,12 +93,15 @@ def _labelled_pairs(
             above.append(bool(row[j] > strongest))
 
 
-def influence_moves(meta: DatasetMeta, splits: dict[str, TrajectorySet]) -> dict:
-    """Over the predicted span, per focal agent (module docstring): `moving` (focal agents whose
-    label names two or more agents at the predicted steps), `top_moves` (of those, the share
-    with two or more distinct top agents over the windows; None where there are none) and
-    `top_moves_fixed` (the same share among focal agents whose label names exactly one agent).
-    Requires recorded influence_windows and attention labels."""
+def influence_moves(
+    meta: DatasetMeta, splits: dict[str, TrajectorySet], case: int | None = None
+) -> dict:
+    """Over the predicted span, per focal agent (module docstring; of the scenes of case index
+    `case` only, if given): `moving` (focal agents whose label names two or more agents at the
+    predicted steps), `top_moves` (of those, the share with two or more distinct top agents
+    over the windows; None where there are none) and `top_moves_fixed` (the same share among
+    focal agents whose label names exactly one agent). Requires recorded influence_windows and
+    attention labels."""
     if not (meta.has(INFLUENCE_WINDOWS) and meta.has("attention")):
         raise ValueError("the window summary needs recorded influence_windows and attention")
     label_counts, top_counts = [], []
@@ -107,7 +110,7 @@ def influence_moves(meta: DatasetMeta, splits: dict[str, TrajectorySet]) -> dict
             [_top_agents(data.influence_windows[:, w]) for w in range(len(window_steps(meta)))],
             axis=1,
         )  # (n, W, N)
-        focal = data.focal
+        focal = data.focal & (True if case is None else (data.case == case)[:, None])
         label_counts.append(_distinct(data.attention[:, meta.num_observed :])[focal])
         top_counts.append(_distinct(tops)[focal])
     labels, tops = np.concatenate(label_counts), np.concatenate(top_counts)
@@ -183,12 +186,19 @@ def influence_window_lines(meta: DatasetMeta, splits: dict[str, TrajectorySet]) 
             f"{_text(row['label_changed'], 15, '.1%')}{_text(row['top_labelled'], 14, '.1%')}"
         )
     if meta.has("attention"):
-        moves = influence_moves(meta, splits)
-        lines.append(
-            f"focal agents whose label names 2+ agents: {moves['moving']}; of them with 2+ "
-            f"top agents over the windows: {_percent(moves['top_moves'])} (label naming one "
-            f"agent: {_percent(moves['top_moves_fixed'])})"
-        )
+        lines += [
+            "moving labels (focal agents whose label names 2+ agents over the predicted "
+            "steps), the share of them with 2+ top agents (of those with 1 labelled agent):"
+        ]
+        cases = [(None, "all")]
+        if meta.has("case"):
+            cases += list(enumerate(meta.case_names))
+        for case, name in cases:
+            moves = influence_moves(meta, splits, case)
+            lines.append(
+                f"  {name:<12}{moves['moving']:>6}  {_percent(moves['top_moves']):>7}  "
+                f"({_percent(moves['top_moves_fixed'])})"
+            )
     return lines
 
 
