@@ -94,10 +94,19 @@ def test_each_compiled_model_starts_from_an_empty_dynamo_cache(batch):
     assert counts[1] == counts[0]  # the second's replaced the first's instead of adding to them
 
 
-def test_every_batch_size_of_a_run_is_compiled_past_dynamos_default_limit(tmp_path: Path):
+def test_every_batch_size_of_a_run_is_compiled_past_dynamos_default_limit(
+    tmp_path: Path, monkeypatch
+):
     """Three batch sizes (a small training set's full and last batches) of four shapes each: 12
-    compiled entries of the graph step, more than Dynamo's default limit of 8, none left eager."""
+    compiled entries of the graph step, more than Dynamo's default limit of 8, none left eager.
+    The entries and their limit are Dynamo's, whatever backend turns a traced graph into
+    kernels, so this test traces with the "eager" backend (seconds; inductor's C++ kernels for
+    12 shapes took 4 minutes here); the tests above compile with inductor."""
+    from functools import partial
+
     from torch._dynamo.eval_frame import _debug_get_cache_entry_list
+
+    monkeypatch.setattr(torch, "compile", partial(torch.compile, backend="eager"))
 
     dataset = TrajectoryDataset(write_braking_dataset(tmp_path / "braking.h5"), "train")
     model_cfg, train_cfg = make_configs("ours", TINY_MODEL, preset="paper")
