@@ -447,3 +447,24 @@ def test_faithfulness_block_of_a_run_and_a_baseline(smoke, tmp_path, capsys):
         f"({baseline['robustness_pairs']} pairs)"
     )
     assert tool.format_faithfulness({"attention_tv": {"observed": None, "predicted": None}}) == ""
+
+
+def test_the_table_keeps_its_columns_apart_whatever_the_nll():
+    """A ridge fit's NLL can reach 1e7 nats: every cell of every row stays a separate field."""
+    evaluate_tool = load_tool("evaluate.py")
+    group = {"ade": 1.0, "fde": 2.0, "scenes": 3, "min_ade": 0.5, "min_fde": 1.0, "k": 20}
+    rows = {"a": {**group, "miss_rate": 0.485, "nll": 22151240.55}}
+    rows["overall"] = {**group, "miss_rate": 0.5, "nll": 4.866}
+    result = {
+        key: {"overall": rows["overall"], "cases": {"a": rows["a"]}}
+        for key in ("main_agents", "all_agents")
+    }
+    result["attention_accuracy"] = {
+        "overall": {"accuracy": None},
+        "cases": {"a": {"accuracy": 0.9}},
+    }
+    header, _, case_row, overall_row = evaluate_tool.format_table(result, ("a",)).splitlines()
+    assert len(case_row.split()) == len(overall_row.split()) == 11
+    assert case_row.split()[7:9] == ["0.485", "2.215e+07"]
+    assert overall_row.split()[7:9] == ["0.500", "4.866"]
+    assert len(case_row) == len(overall_row) == len(header)

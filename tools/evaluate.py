@@ -165,7 +165,7 @@ def format_table(result: dict, case_names: tuple[str, ...], words: Wording | Non
     k = result["main_agents"]["overall"].get("k")
     header = f"{'case':<12}{'ADE ' + who:>11}{'FDE ' + who:>11}{'ADE all':>10}{'FDE all':>10}"
     if k:
-        header += f"{f'minADE{k}':>10}{f'minFDE{k}':>10}{'miss':>8}{'NLL':>8}"
+        header += f"{f'minADE{k}':>10}{f'minFDE{k}':>10}{'miss':>8}{'NLL':>10}"
     header += f"{'attn acc':>10}{scenes:>9}"
     rows = [header, "-" * len(header)]
 
@@ -179,7 +179,9 @@ def format_table(result: dict, case_names: tuple[str, ...], words: Wording | Non
         line += f"{cell(every['ade'])}{cell(every['fde'])}"
         if k:
             line += f"{cell(main['min_ade'])}{cell(main['min_fde'])}"
-            line += f"{cell(main['miss_rate'], 8)}{cell(main['nll'], 8, '.2f')}"
+            # 4 significant digits: a ridge fit's NLL can reach 1e7 nats (a near-singular
+            # residual Gaussian) and must not run into the miss column
+            line += f"{cell(main['miss_rate'], 8)}{cell(main['nll'], 10, '.4g')}"
         rows.append(f"{line}{cell(accuracy)}{every['scenes']:>9}")
     return "\n".join(rows)
 
