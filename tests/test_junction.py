@@ -186,11 +186,11 @@ def _runs(labels: np.ndarray) -> list[tuple[int, int]]:
 
 
 # --- Roundabout Entry ----------------------------------------------------------------------------
-ROUNDABOUTS = [name for name, _ in JUNCTION_CASES if name.startswith("roundabout_entry")]
+ROUNDABOUTS = sorted({name for name, _ in JUNCTION_CASES if name.startswith("roundabout_entry")})
 
 
 @pytest.mark.parametrize("case", RoundaboutEntry.case_names)
-@pytest.mark.parametrize("name", sorted(set(ROUNDABOUTS)))
+@pytest.mark.parametrize("name", ROUNDABOUTS)
 def test_roundabout_entering_car_yields_or_goes_as_its_case_says(name: str, case: str) -> None:
     sc = scenario(name)
     brown_followed = 0
