@@ -6,20 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scenarios import (
-    ENV_MODULES,
-    VERSIONS,
-    double_merge_v0,
-    left_turn_v0,
-)
-
-MODULES = [ENV_MODULES[name] for name in VERSIONS]  # every registered version's module
-CASES = [
-    (module, case)
-    for module in MODULES
-    for case in module.raw_env.version.scenario_class.case_names
-]
-IDS = [f"{module.__name__.split('.')[-1]}-{case}" for module, case in CASES]
+from scenarios import double_merge_v0, left_turn_v0
 
 
 # --- junction scenarios: bounds, reward and frames of a road layout ---------------------------

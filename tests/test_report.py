@@ -1,5 +1,5 @@
-"""pipeline.report: records, statistics, verdicts and tables on hand-made numbers (its figures
-and files: tests/test_report_figures.py)."""
+"""pipeline.report: records, tables, context and figure inputs on hand-made numbers (its
+statistics: test_report_statistics.py; its figures and files: test_report_figures.py)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,14 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from report_runs import (
+    ADE_FDE,
+    MAJOR_ADE,
+    fake_eval,
+    hand_runs,
+    sampled_runs,
+    with_samples,
+)
 from scipy import stats
 
 from pipeline.protocol import SETTING_BY_NAME, Protocol
@@ -18,94 +26,9 @@ from pipeline.report import context, figures, markdown, records, statistics, tab
 from pipeline.report.records import (
     MEASURES,
     CaseNames,
-    Difference,
     Measure,
     RunRecord,
-    Summary,
-    WelchTest,
 )
-
-MAJOR_ADE = Measure("ade", "major")
-MINOR_ADE = Measure("ade", "minor")
-
-
-def fake_eval(ade: dict, fde: dict, accuracy: float = 0.5) -> dict:
-    """An eval.json of a halting-car setting with `go` as the major case."""
-    names = {"major": "go", "minor": "stop"}
-
-    def group(scale: float) -> dict:
-        cases = {names[r]: {"ade": scale * ade[r], "fde": scale * fde[r]} for r in names}
-        return {"cases": cases, "overall": {"ade": scale * ade["major"], "fde": 0.0}}
-
-    acc = {
-        "cases": {n: {"accuracy": accuracy, "mean_weight": accuracy / 2} for n in names.values()},
-        "overall": {"accuracy": accuracy, "mean_weight": accuracy / 2},
-    }
-    return {
-        "major_case": "go",
-        "case_names": ["stop", "go"],
-        "main_agents": group(1.0),
-        "all_agents": group(0.1),
-        "attention_accuracy": acc,
-        "train_seconds": 2.0,
-    }
-
-
-ADE_FDE = ({"major": 1.0, "minor": 2.0}, {"major": 2.0, "minor": 4.0})
-
-
-def hand_runs() -> list[RunRecord]:
-    rows = [  # variant, seed, major ADE, minor ADE (FDE = 2 x ADE)
-        ("ours", 0, 1.0, 2.0),
-        ("ours", 1, 3.0, 4.0),
-        ("s_attn", 0, 5.0, 8.0),
-        ("s_attn", 1, 7.0, 8.0),
-        ("const_vel", 0, 9.0, 9.0),
-    ]
-    return [
-        RunRecord.from_eval(
-            "hc_go", v, s, fake_eval({"major": a, "minor": m}, {"major": 2 * a, "minor": 2 * m})
-        )
-        for v, s, a, m in rows
-    ]
-
-
-def with_samples(result: dict, seed: int, k: int = 20, threshold: float | None = 2.0) -> dict:
-    """`result` scored on K samples too, as predictor.forecasting.score writes it: in every
-    entry of both groups minADE = ADE / 2, minFDE = FDE / 2, miss rate 0.2 + 0.1 seed and NLL
-    -1 + 3 seed; the eval.json's sampling record names the miss threshold (None: no record)."""
-    out = {**result}
-    for group in ("main_agents", "all_agents"):
-        entries = {"overall": result[group]["overall"], **result[group]["cases"]}
-        scored = {
-            name: {
-                **entry,
-                "min_ade": entry["ade"] / 2,
-                "min_fde": entry["fde"] / 2,
-                "miss_rate": 0.2 + 0.1 * seed,
-                "nll": -1.0 + 3.0 * seed,
-                "k": k,
-            }
-            for name, entry in entries.items()
-        }
-        overall = scored.pop("overall")
-        out[group] = {"overall": overall, "cases": scored}
-    if threshold is not None:
-        out["sampling"] = {"k": k, "seed": 0, "miss_threshold_m": threshold, "method": "m"}
-    return out
-
-
-def sampled_runs() -> list[RunRecord]:
-    """hand_runs with samples in both Ours seeds and S-Attn's seed 0 (not its seed 1), and none
-    in Const-Vel's run."""
-    runs = []
-    for run, (v, s) in zip(hand_runs(), [("ours", 0), ("ours", 1), ("s_attn", 0), ("s_attn", 1)]):
-        ade = {r: run.values[Measure("ade", r)] for r in ("major", "minor")}
-        result = fake_eval(ade, {r: 2 * a for r, a in ade.items()})
-        if (v, s) != ("s_attn", 1):
-            result = with_samples(result, s)
-        runs.append(RunRecord.from_eval("hc_go", v, s, result))
-    return runs + [hand_runs()[4]]
 
 
 # ---------------------------------------------------------------------------------- records
@@ -160,161 +83,6 @@ def test_a_run_scored_on_samples_records_them_and_an_older_one_none():
     assert (unrecorded.sample_k, unrecorded.miss_threshold_m) == (5, None)
     no_samples = with_samples(fake_eval(*ADE_FDE), 0, k=0)  # K = 0: nothing sampled
     assert set(RunRecord.from_eval("hc_go", "ours", 0, no_samples).values) == set(MEASURES)
-
-
-# ---------------------------------------------------------------------------------- statistics
-def test_summary_is_mean_and_sample_std():
-    summary = statistics.summarize([1.0, 2.0, None, 3.0, 4.0, float("nan")])
-    assert summary.n == 4 and summary.mean == pytest.approx(2.5)
-    assert summary.std == pytest.approx(math.sqrt(5.0 / 3.0))  # squared deviations 5, n-1 3
-    assert statistics.summarize([2.0]) == Summary(2.0, None, 1)
-    assert statistics.summarize([None]) == Summary(None, None, 0)
-
-
-def test_welch_test_matches_scipy_and_the_formula():
-    a, b = [0.51, 0.48, 0.55, 0.50, 0.47], [0.62, 0.70, 0.58, 0.66]
-    result = statistics.welch_test(a, b)
-    assert result.p == pytest.approx(stats.ttest_ind(a, b, equal_var=False).pvalue)
-    va, vb = np.var(a, ddof=1) / len(a), np.var(b, ddof=1) / len(b)
-    t = (np.mean(a) - np.mean(b)) / math.sqrt(va + vb)
-    df = (va + vb) ** 2 / (va**2 / (len(a) - 1) + vb**2 / (len(b) - 1))
-    assert result.t == pytest.approx(t)
-    assert result.p == pytest.approx(2 * stats.t.sf(abs(t), df))
-    assert statistics.welch_test([1.0], [2.0, 3.0]) == WelchTest(None, None)
-    assert statistics.welch_test([1.0, 1.0], [1.0, 1.0]) == WelchTest(None, None)  # no spread
-
-
-def test_aggregates_of_hand_made_runs():
-    results = statistics.analyse(hand_runs())
-    ours = results.summary("hc_go", "ours")
-    assert ours.runs == 2
-    assert ours[MAJOR_ADE] == Summary(2.0, math.sqrt(2.0), 2)  # 1 and 3: std = 2 / sqrt(2)
-    assert ours[Measure("attention_weight", "minor")] == Summary(0.25, 0.0, 2)
-    assert results.summary("hc_go", "const_vel")[MINOR_ADE] == Summary(9.0, None, 1)
-    assert results.summary("hc_go", "nonsmooth") is None
-    assert results.has_setting("hc_go") and not results.has_setting("hc_stop")
-
-
-def test_sampled_measures_are_summarised_over_the_runs_that_have_them():
-    results = statistics.analyse(sampled_runs())
-    ours, s_attn = results.summary("hc_go", "ours"), results.summary("hc_go", "s_attn")
-    assert ours[Measure("min_ade", "major")] == Summary(1.0, math.sqrt(0.5), 2)  # 0.5 and 1.5
-    assert ours[Measure("nll", "minor")] == Summary(0.5, pytest.approx(3 / math.sqrt(2)), 2)
-    assert s_attn.runs == 2 and s_attn[Measure("min_fde", "major")] == Summary(5.0, None, 1)
-    assert s_attn[MAJOR_ADE] == Summary(6.0, math.sqrt(2.0), 2)  # ADE/FDE: both seeds
-    plain = statistics.analyse(hand_runs())
-    assert set(results.summary("hc_go", "const_vel").summaries) == set(MEASURES)
-    assert set(plain.summary("hc_go", "ours").summaries) == set(MEASURES)
-    assert plain.summary("hc_go", "ours").to_json() == {
-        key: value
-        for key, value in ours.to_json().items()
-        if key not in ("main_agents", "all_agents")
-    } | {
-        group: {
-            case: {m: cell for m, cell in cells.items() if m in records.METRICS}
-            for case, cells in ours.to_json()[group].items()
-        }
-        for group in ("main_agents", "all_agents")
-    }
-    assert results.comparisons.keys() == plain.comparisons.keys()
-
-
-def test_comparisons_of_hand_made_runs():
-    results = statistics.analyse(hand_runs())
-    assert set(results.comparisons) == {("hc_go", "ours", "s_attn")}  # no baseline compared
-    cell = results.comparison("hc_go", "s_attn")[MAJOR_ADE]
-    assert (cell.mean_ours, cell.mean_other) == (2.0, 6.0)
-    assert cell.test.p == pytest.approx(stats.ttest_ind([1, 3], [5, 7], equal_var=False).pvalue)
-    fde = results.comparison("hc_go", "s_attn")[Measure("fde", "major")]
-    assert fde.test.p == pytest.approx(stats.ttest_ind([2, 6], [10, 14], equal_var=False).pvalue)
-
-
-def test_better_verdicts():
-    assert statistics.better_verdict(1.0, 2.0, 0.001, 0.01) == "holds"
-    assert statistics.better_verdict(1.0, 2.0, 0.02, 0.01) == "not significant"
-    assert statistics.better_verdict(1.0, 2.0, None, 0.01) == "not significant"
-    assert statistics.better_verdict(2.0, 1.0, 0.001, 0.01) == "does not hold"
-    assert statistics.better_verdict(2.0, 2.0, 0.5, 0.01) == "does not hold"
-    assert statistics.better_verdict(None, 1.0, 0.5, 0.01) == "n/a"
-    cell = Difference(WelchTest(-5.0, 0.0004), 1.0, 2.0)
-    assert statistics.better(cell, 0.01).text == "holds (p<0.001)"
-
-
-@pytest.mark.parametrize(
-    "ours, other, p, text",
-    [
-        (1.1, 1.0, 0.4, "holds (no significant difference) (+10%, p=0.400)"),
-        (0.9, 1.0, 0.01, "holds (ours better) (-10%, p=0.010)"),
-        (1.5, 1.0, 0.01, "does not hold (+50%, p=0.010)"),
-        (1.5, 1.0, None, "holds (no significant difference) (+50%, p n/a)"),
-        (None, 1.0, 0.5, "n/a"),
-    ],
-)
-def test_comparable_verdicts(ours, other, p, text):
-    assert statistics.comparable(Difference(WelchTest(None, p), ours, other)).text == text
-
-
-def test_claims_table_rows_for_run_and_missing_comparisons():
-    results = statistics.analyse(hand_runs())
-    rows = statistics.claims(results, ["hc_go"], [])
-    assert [r.claim for r in rows][:5] == [c[3] for c in statistics.CLAIMS]
-    s_attn = rows[0].cells
-    p = stats.ttest_ind([1, 3], [5, 7], equal_var=False).pvalue  # 0.106: not < 0.01
-    assert s_attn[MAJOR_ADE].text == f"not significant (p={p:.3f})"
-    assert rows[1].cells[MAJOR_ADE].text == "n/a (not run)"  # nonsmooth was not run
-    assert rows[-1].setting == "size study"
-    assert rows[-1].cells[MAJOR_ADE].text == "n/a (needs two size settings)"
-    assert rows[0].to_json()["cells"]["major ade"] == s_attn[MAJOR_ADE].text
-
-
-def test_correct_is_compared_with_average_without_ours():
-    """The pathway check (Ours-Correct against Ours-Average) needs no Ours run, and its claim
-    row reads the Welch test of the two."""
-    rows = [("correct", 0, 1.0), ("correct", 1, 2.0), ("average", 0, 4.0), ("average", 1, 6.0)]
-    runs = [
-        RunRecord.from_eval(
-            "hc_stop", v, s, fake_eval({"major": a, "minor": a}, {"major": a, "minor": a})
-        )
-        for v, s, a in rows
-    ]
-    results = statistics.analyse(runs)
-    assert set(results.comparisons) == {("hc_stop", "correct", "average")}
-    cell = results.comparison("hc_stop", "average", first="correct")[MAJOR_ADE]
-    assert (cell.mean_ours, cell.mean_other) == (1.5, 5.0)
-    p = stats.ttest_ind([1, 2], [4, 6], equal_var=False).pvalue  # 0.074: not < 0.05
-    claims = {row.claim: row for row in statistics.claims(results, ["hc_stop"], [])}
-    pathway = claims[statistics.CLAIMS[-1][3]]
-    assert pathway.cells[MAJOR_ADE].text == f"not significant (p={p:.3f})"
-    assert claims[statistics.CLAIMS[2][3]].cells[MAJOR_ADE].text == "n/a (not run)"  # no Ours
-
-
-def size_runs(ours_by_size: list[float]) -> list[RunRecord]:
-    runs = []
-    for k, ours in enumerate(ours_by_size):
-        for variant, ade in (("ours", ours), ("nonsmooth", 2.0)):
-            result = fake_eval({"major": ade, "minor": ade}, {"major": ade, "minor": ade})
-            runs.append(RunRecord.from_eval(f"size{k}", variant, 0, result))
-    return runs
-
-
-@pytest.mark.parametrize(
-    "ours_by_size, verdict",
-    [
-        ([1.0, 1.6, 1.9], "holds"),  # margins 1.0, 0.4, 0.1
-        ([1.0, 1.9, 1.6], "partly"),  # margins 1.0, 0.1, 0.4
-        ([1.9, 1.6, 1.0], "does not hold"),  # margins 0.1, 0.4, 1.0
-    ],
-)
-def test_size_claim_needs_a_shrinking_margin(ours_by_size, verdict):
-    results = statistics.analyse(size_runs(ours_by_size))
-    cells = statistics.size_claim(results, ["size0", "size1", "size2"])
-    assert len(cells) == 4 and all(v.verdict == verdict for v in cells.values())
-    margins = statistics.size_margins(results, ["size0", "size1", "missing"], MAJOR_ADE)
-    assert margins == [
-        pytest.approx(2.0 - ours_by_size[0]),
-        pytest.approx(2.0 - ours_by_size[1]),
-        None,
-    ]
 
 
 # ---------------------------------------------------------------------------------- tables

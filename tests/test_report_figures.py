@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import make_meta, make_trajectory_set, write_predictions_npz
-from test_report import ADE_FDE, fake_eval, hand_runs
+from report_runs import ADE_FDE, fake_eval, hand_runs
 
 from pipeline.report import context, figures, records, statistics
 from pipeline.report.records import (
